@@ -1,0 +1,100 @@
+"""Data passed along the frame flow of DESIGN.md §3: Source -> Localizer -> KeypointModel ->
+PoseEstimator -> Tracker -> Sinks. Plain dataclasses with units and frames in the field docs.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import StrEnum
+
+import numpy as np
+
+__all__ = ["Frame", "KeypointDetection", "PoseMeasurement", "Track", "TrackStatus"]
+
+
+@dataclass(frozen=True, slots=True)
+class Frame:
+    """One decoded image.
+
+    index : frame number from the source, starting at 0.
+    t_ns : capture time in integer nanoseconds (Unix epoch for live sources, stream PTS for files).
+    bgr : (H, W, 3) uint8 image in OpenCV's BGR order.
+    """
+
+    index: int
+    t_ns: int
+    bgr: np.ndarray
+
+
+@dataclass(frozen=True, slots=True)
+class KeypointDetection:
+    """The keypoint model's answer for one crop, mapped back to full-frame pixels.
+
+    keypoints_px : (4, 2) float, pixel coordinates in keypoint order (origin at the centre of the
+        top-left pixel).
+    presence : probability in [0, 1] that the crop holds a drone.
+    roi : (x0, y0, side) of the square crop in full-frame pixels: column and row of its top-left
+        pixel and its side, integers (see ``dronekey.crop``).
+    """
+
+    keypoints_px: np.ndarray
+    presence: float
+    roi: tuple[int, int, int]
+
+
+@dataclass(frozen=True, slots=True)
+class PoseMeasurement:
+    """One 6DoF pose from the keypoints of one frame: ``p_cam = R @ p_body + t``.
+
+    R : (3, 3) body -> camera rotation.
+    t : (3,) body origin in the camera frame, metres.
+    reprojection_px : RMS reprojection error of the keypoints, pixels.
+    covariance : (6, 6) measurement covariance of [t (m), rotation vector (rad)] in the camera frame.
+    alternative : the other IPPE solution as (R, t, reprojection_px), or None.
+    method : "ippe" or "paper".
+    """
+
+    R: np.ndarray
+    t: np.ndarray
+    reprojection_px: float
+    covariance: np.ndarray
+    alternative: tuple[np.ndarray, np.ndarray, float] | None = None
+    method: str = "ippe"
+
+
+class TrackStatus(StrEnum):
+    """Lifecycle of a track: tentative until confirmed by enough hits, coasting while predicted
+    without measurements, lost when it has coasted for too long (its last update)."""
+
+    TENTATIVE = "tentative"
+    CONFIRMED = "confirmed"
+    COASTING = "coasting"
+    LOST = "lost"
+
+
+@dataclass(slots=True)
+class Track:
+    """A filtered drone track at time ``t_ns`` (what the sinks publish).
+
+    position_m, velocity_mps : (3,) camera frame (OpenCV: x right, y down, z forward).
+    position_cov : (3, 3) covariance of position_m, m^2.
+    quaternion_wxyz : (4,) body -> camera rotation, w >= 0.
+    rotation_std_rad : (3,) standard deviation of the orientation (rotation vector components).
+    keypoints_px : (4, 2) last measured keypoints in full-frame pixels, or None while coasting.
+    score : presence score of the last measurement in [0, 1].
+    reprojection_px : RMS reprojection error of the last measurement, pixels.
+    """
+
+    track_id: int
+    t_ns: int
+    status: TrackStatus
+    position_m: np.ndarray
+    velocity_mps: np.ndarray
+    position_cov: np.ndarray
+    quaternion_wxyz: np.ndarray
+    rotation_std_rad: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
+    keypoints_px: np.ndarray | None = None
+    score: float = 0.0
+    reprojection_px: float = float("nan")
+    hits: int = 0
+    age_s: float = 0.0

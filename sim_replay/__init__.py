@@ -1,0 +1,1 @@
+"""Synthetic 3DronePose-style sequences, dataset readers and the training sampler."""
