@@ -10,11 +10,11 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 __all__ = [
+    "canonical_quat",
     "geodesic_angle_deg",
     "matrix_to_quat_wxyz",
     "quat_wxyz_to_matrix",
     "rotation_from_euler_deg",
-    "canonical_quat",
 ]
 
 

@@ -1,5 +1,7 @@
 """Geometry core: camera model, rotations, drone specs, crops."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -13,7 +15,7 @@ from dronekey.rotations import (
     rotation_from_euler_deg,
 )
 
-SHARED_CALIB = "../shared/data/calib-real/reference_right.xml"
+SHARED_CALIB = Path(__file__).parent / "data" / "calib-real" / "reference_right.xml"
 
 
 def test_project_and_undistort_roundtrip():
