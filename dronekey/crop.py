@@ -81,7 +81,7 @@ def crop_square(image: np.ndarray, roi: ROI, out_size: int) -> np.ndarray:
     h, w = image.shape[:2]
     xa, ya, xb, yb = max(x0, 0), max(y0, 0), min(x0 + side, w), min(y0 + side, h)
     if xa >= xb or ya >= yb:
-        return np.zeros((out_size, out_size) + image.shape[2:], dtype=image.dtype)
+        return np.zeros((out_size, out_size, *image.shape[2:]), dtype=image.dtype)
     patch = image[ya:yb, xa:xb]
     if (xa, ya, xb, yb) != (x0, y0, x0 + side, y0 + side):
         patch = cv2.copyMakeBorder(
