@@ -16,16 +16,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dronekey.rotations import rotation_from_euler_deg
+from dronekey.rotations import ned_from_camera
 
 __all__ = ["CameraGeo", "GeoError"]
 
 _A = 6378137.0  # WGS84 semi-major axis, m
 _F = 1 / 298.257223563
 _E2 = _F * (2 - _F)
-
-# Camera frame (x right, y down, z forward) -> mount frame FRD (forward = optical axis).
-_FRD_FROM_CAM = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 
 
 class GeoError(ValueError):
@@ -101,7 +98,7 @@ class CameraGeo:
     @property
     def R_ned_cam(self) -> np.ndarray:
         """Rotation from the camera frame to local North-East-Down at the camera."""
-        return rotation_from_euler_deg(self.yaw_deg, self.pitch_deg, self.roll_deg) @ _FRD_FROM_CAM
+        return ned_from_camera(self.yaw_deg, self.pitch_deg, self.roll_deg)
 
     def ned_from_cam(self, v_cam: np.ndarray) -> np.ndarray:
         """Rotate a camera-frame vector (position offset or velocity) into local NED."""

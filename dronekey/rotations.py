@@ -13,9 +13,13 @@ __all__ = [
     "canonical_quat",
     "geodesic_angle_deg",
     "matrix_to_quat_wxyz",
+    "ned_from_camera",
     "quat_wxyz_to_matrix",
     "rotation_from_euler_deg",
 ]
+
+# Camera frame (x right, y down, z forward) -> FRD frame of the camera mount (forward = optical axis).
+_FRD_FROM_CAMERA = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 
 
 def matrix_to_quat_wxyz(R: np.ndarray) -> np.ndarray:
@@ -48,3 +52,10 @@ def geodesic_angle_deg(R_a: np.ndarray, R_b: np.ndarray) -> float:
 def rotation_from_euler_deg(yaw: float, pitch: float, roll: float) -> np.ndarray:
     """Rotation matrix from intrinsic z-y'-x'' (yaw, pitch, roll) angles in degrees (aerospace order)."""
     return Rotation.from_euler("ZYX", [yaw, pitch, roll], degrees=True).as_matrix()
+
+
+def ned_from_camera(yaw_deg: float, pitch_deg: float, roll_deg: float) -> np.ndarray:
+    """Rotation from the OpenCV camera frame to local North-East-Down for a camera whose optical axis
+    has heading ``yaw`` (0 = north, 90 = east), elevation ``pitch`` (positive up) and ``roll`` about
+    the axis, in degrees. With all zero the camera looks north, level: x east, y down, z north."""
+    return rotation_from_euler_deg(yaw_deg, pitch_deg, roll_deg) @ _FRD_FROM_CAMERA
