@@ -1,0 +1,432 @@
+"""Multi-target tracker of drone poses: association, gating, filtering and track lifecycle.
+
+One entry point, :meth:`Tracker.update`, called once per frame with that frame's pose
+measurements (as norfair's ``Tracker.update``). Each track holds two filters (DESIGN.md §3):
+
+- :class:`~dronekey.position_filter.ConstantVelocityFilter` on position and velocity in the camera
+  frame, stepped with the real time between frames (``t_ns`` differences);
+- :class:`~dronekey.orientation_filter.OrientationFilter`, an error-state filter on the body ->
+  camera rotation that cannot jump at +-180 deg or at quaternion sign flips.
+
+Measurements are assigned to tracks by gated nearest neighbour: the cost is the squared
+Mahalanobis distance of the position innovation, pairs above ``position_gate_chi2`` are forbidden,
+and ``scipy.optimize.linear_sum_assignment`` solves the rest. The rotation has its own gate: a
+rotation that fails it (typically the wrong IPPE solution) is replaced by the measurement's
+``alternative`` when that one passes, and is otherwise not used (the position still is).
+
+Lifecycle: a new track is TENTATIVE; it becomes CONFIRMED after ``confirm_hits`` hits within its
+first ``confirm_window`` frames, or is dropped. A confirmed track without a measurement is
+COASTING (predicted); one that has coasted longer than ``max_coast_s`` is reported once as LOST and
+dropped. Every track that was reported ends with exactly one LOST report.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections import deque
+from collections.abc import Sequence
+from dataclasses import dataclass, fields
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from dronekey.orientation_filter import OrientationFilter
+from dronekey.position_filter import ConstantVelocityFilter
+from dronekey.rotations import matrix_to_quat_wxyz
+from dronekey.types import PoseMeasurement, Track, TrackStatus
+
+__all__ = ["TrackPrediction", "TrackState", "Tracker", "TrackerConfig"]
+
+log = logging.getLogger(__name__)
+
+_NS_PER_S = 1_000_000_000
+_FORBIDDEN = 1e12  # assignment cost of a gated-out pair
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    """Thresholds and noise levels of :class:`Tracker`; every field is checked on construction.
+
+    Attributes
+    ----------
+    accel_std_mps2 : standard deviation of the white acceleration of the position model (m/s^2).
+    angular_accel_std_radps2 : the same for the orientation model (rad/s^2).
+    initial_velocity_std_mps : prior standard deviation of a new track's velocity (m/s).
+    initial_angular_velocity_std_radps : the same for its angular velocity (rad/s).
+    position_gate_chi2 : a measurement whose squared Mahalanobis position distance to a track
+        exceeds this cannot update it (chi-square, 3 dof; 16.27 keeps 99.9 % of true measurements).
+    rotation_gate_chi2 : the same for the rotation innovation.
+    rotation_reset_after : after this many consecutive gated-out rotations of an updated track, the
+        orientation is re-initialised from the measurement (the track had locked onto a wrong one).
+    use_alternative : try a measurement's alternative IPPE solution when its rotation fails the gate.
+    confirm_hits, confirm_window : a track is confirmed after ``confirm_hits`` hits within its first
+        ``confirm_window`` frames (update calls); otherwise it is dropped.
+    max_coast_s : a track without a measurement for longer than this (seconds) is lost.
+    max_tracks : live tracks at most; measurements that would start more are ignored.
+    """
+
+    accel_std_mps2: float = 4.0
+    angular_accel_std_radps2: float = 8.0
+    initial_velocity_std_mps: float = 3.0
+    initial_angular_velocity_std_radps: float = 2.0
+    position_gate_chi2: float = 16.27
+    rotation_gate_chi2: float = 16.27
+    rotation_reset_after: int = 5
+    use_alternative: bool = True
+    confirm_hits: int = 3
+    confirm_window: int = 5
+    max_coast_s: float = 1.0
+    max_tracks: int = 4
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if f.type == "bool":
+                if not isinstance(value, bool):
+                    raise ValueError(f"TrackerConfig.{f.name} must be a bool, got {value!r}")
+            elif f.type == "int":
+                if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
+                    raise ValueError(f"TrackerConfig.{f.name} must be an integer >= 1, got {value!r}")
+            elif (
+                isinstance(value, bool)
+                or not isinstance(value, int | float | np.number)
+                or not math.isfinite(value)
+                or value <= 0
+            ):
+                raise ValueError(f"TrackerConfig.{f.name} must be a positive finite number, got {value!r}")
+        if self.confirm_window < self.confirm_hits:
+            raise ValueError(
+                f"TrackerConfig.confirm_window must be >= confirm_hits ({self.confirm_hits}), "
+                f"got {self.confirm_window}"
+            )
+
+
+@dataclass(frozen=True, slots=True)
+class TrackPrediction:
+    """A live track's pose predicted to a future time (the PnP prior and the next crop).
+
+    R : (3, 3) body -> camera rotation; t : (3,) position in the camera frame (m);
+    position_cov : (3, 3) m^2; rotation_cov : (3, 3) camera-frame rotation vector, rad^2.
+    """
+
+    track_id: int
+    status: TrackStatus
+    t_ns: int
+    R: np.ndarray
+    t: np.ndarray
+    position_cov: np.ndarray
+    rotation_cov: np.ndarray
+
+
+@dataclass(frozen=True, slots=True)
+class TrackState:
+    """The full filter state of one track at its last update, for publishing or debugging.
+
+    position_velocity_cov : (6, 6) covariance of [position (m), velocity (m/s)], camera frame.
+    angular_velocity_radps : (3,) camera frame.
+    orientation_cov : (6, 6) covariance of [rotation vector (rad), angular velocity (rad/s)],
+        camera frame.
+    """
+
+    track_id: int
+    status: TrackStatus
+    t_ns: int
+    position_m: np.ndarray
+    velocity_mps: np.ndarray
+    position_velocity_cov: np.ndarray
+    R: np.ndarray
+    angular_velocity_radps: np.ndarray
+    orientation_cov: np.ndarray
+
+
+class _TrackRecord:
+    """One track's filters and lifecycle counters (internal to :class:`Tracker`)."""
+
+    def __init__(
+        self,
+        track_id: int,
+        t_ns: int,
+        measurement: PoseMeasurement,
+        score: float,
+        keypoints_px: np.ndarray | None,
+        config: TrackerConfig,
+    ) -> None:
+        cov = measurement.covariance
+        self.track_id = track_id
+        self.status = TrackStatus.TENTATIVE
+        self.born_ns = t_ns
+        self.t_ns = t_ns
+        self.last_hit_ns = t_ns
+        self.hits = 1
+        self.frames = 1  # update calls seen, the birth frame included
+        self.window: deque[bool] = deque([True], maxlen=config.confirm_window)
+        self.rotation_misses = 0
+        self.position = ConstantVelocityFilter(
+            measurement.t, cov[:3, :3], config.initial_velocity_std_mps, config.accel_std_mps2
+        )
+        self.orientation = OrientationFilter(
+            measurement.R,
+            cov[3:, 3:],
+            config.initial_angular_velocity_std_radps,
+            config.angular_accel_std_radps2,
+        )
+        self.score = score
+        self.keypoints_px = keypoints_px
+        self.reprojection_px = float(measurement.reprojection_px)
+
+    def predict_to(self, t_ns: int) -> None:
+        dt = (t_ns - self.t_ns) / _NS_PER_S
+        self.position.predict(dt)
+        self.orientation.predict(dt)
+        self.t_ns = t_ns
+
+    def to_track(self, status: TrackStatus | None = None) -> Track:
+        R = self.orientation.rotation
+        return Track(
+            track_id=self.track_id,
+            t_ns=self.t_ns,
+            status=status or self.status,
+            position_m=self.position.position_m,
+            velocity_mps=self.position.velocity_mps,
+            position_cov=self.position.covariance[:3, :3],
+            quaternion_wxyz=matrix_to_quat_wxyz(R),
+            rotation_std_rad=np.sqrt(np.clip(np.diag(self.orientation.rotation_cov_cam), 0.0, None)),
+            keypoints_px=self.keypoints_px,
+            score=self.score,
+            reprojection_px=self.reprojection_px,
+            hits=self.hits,
+            age_s=(self.t_ns - self.born_ns) / _NS_PER_S,
+        )
+
+
+class Tracker:
+    """Tracks drones over time from per-frame pose measurements.
+
+    Parameters
+    ----------
+    config : TrackerConfig or None
+        Thresholds and noise levels; the defaults suit a small quadcopter seen at 30 fps.
+    """
+
+    def __init__(self, config: TrackerConfig | None = None) -> None:
+        if config is not None and not isinstance(config, TrackerConfig):
+            raise TypeError(f"config must be a TrackerConfig, got {type(config).__name__}")
+        self.config = config or TrackerConfig()
+        self._tracks: dict[int, _TrackRecord] = {}
+        self._next_id = 1
+        self._t_ns: int | None = None
+
+    # ------------------------------------------------------------------ public
+    def update(
+        self,
+        t_ns: int,
+        measurements: Sequence[PoseMeasurement],
+        scores: Sequence[float] | None = None,
+        keypoints_px: Sequence[np.ndarray | None] | None = None,
+    ) -> list[Track]:
+        """Advance every track to ``t_ns`` and fold in this frame's measurements.
+
+        Parameters
+        ----------
+        t_ns : int
+            Time of the frame, integer nanoseconds; never earlier than the previous call's.
+        measurements : sequence of PoseMeasurement
+            This frame's poses (any number; usually 0 or 1).
+        scores : sequence of float, optional
+            Presence score of each measurement, copied to the track it updates (NaN when absent).
+        keypoints_px : sequence of (4, 2) arrays or None, optional
+            Keypoints each measurement came from, copied to the track it updates.
+
+        Returns
+        -------
+        list of Track
+            Every live track (tentative ones included, their status says so) and, once, each track
+            lost in this call, ordered by track id.
+        """
+        t_ns = self._check_time(t_ns)
+        measurements = list(measurements)
+        for i, m in enumerate(measurements):
+            if not isinstance(m, PoseMeasurement):
+                raise TypeError(f"measurements[{i}] must be a PoseMeasurement, got {type(m).__name__}")
+        scores = _per_measurement("scores", scores, len(measurements), float("nan"))
+        keypoints_px = _per_measurement("keypoints_px", keypoints_px, len(measurements), None)
+
+        for track in self._tracks.values():
+            track.predict_to(t_ns)
+        pairs, unmatched = self._associate(measurements)
+        for track_id, j in pairs:
+            self._apply(self._tracks[track_id], measurements[j], scores[j], keypoints_px[j])
+        matched = {track_id for track_id, _ in pairs}
+
+        reports: list[Track] = []
+        for track in list(self._tracks.values()):
+            if track.track_id not in matched:
+                self._miss(track)
+            if self._is_lost(track):
+                reports.append(track.to_track(TrackStatus.LOST))
+                del self._tracks[track.track_id]
+                log.info("track %d lost after %d hits", track.track_id, track.hits)
+        for j in unmatched:
+            if len(self._tracks) >= self.config.max_tracks:
+                log.debug("measurement ignored: max_tracks=%d live tracks", self.config.max_tracks)
+                continue
+            track = _TrackRecord(
+                self._next_id, t_ns, measurements[j], scores[j], keypoints_px[j], self.config
+            )
+            self._tracks[track.track_id] = track
+            self._next_id += 1
+        reports.extend(track.to_track() for track in self._tracks.values())
+        return sorted(reports, key=lambda tr: tr.track_id)
+
+    def predict(self, t_ns: int) -> list[TrackPrediction]:
+        """Each live track's pose predicted to ``t_ns`` (no state changes), for the IPPE prior and
+        for placing the next crop."""
+        t_ns = self._check_time(t_ns, advance=False)
+        out = []
+        for track in self._tracks.values():
+            dt = (t_ns - track.t_ns) / _NS_PER_S
+            x, P = track.position.predicted(dt)
+            R = track.orientation.predicted_rotation(dt)
+            # The rotation covariance is not propagated here: the crop and the prior need the pose.
+            out.append(
+                TrackPrediction(
+                    track.track_id,
+                    track.status,
+                    t_ns,
+                    R,
+                    x[:3],
+                    P[:3, :3],
+                    track.orientation.rotation_cov_cam,
+                )
+            )
+        return out
+
+    def state(self, track_id: int) -> TrackState:
+        """Full filter state (means and covariances) of a live track at its last update."""
+        if track_id not in self._tracks:
+            raise KeyError(f"no live track with track_id={track_id}; live: {sorted(self._tracks)}")
+        track = self._tracks[track_id]
+        R = track.orientation.rotation
+        rot = np.zeros((6, 6))
+        rot[:3, :3] = rot[3:, 3:] = R
+        return TrackState(
+            track_id=track_id,
+            status=track.status,
+            t_ns=track.t_ns,
+            position_m=track.position.position_m,
+            velocity_mps=track.position.velocity_mps,
+            position_velocity_cov=track.position.covariance,
+            R=R,
+            angular_velocity_radps=R @ track.orientation.angular_velocity_body_radps,
+            orientation_cov=rot @ track.orientation.covariance_body @ rot.T,
+        )
+
+    @property
+    def track_ids(self) -> list[int]:
+        """Ids of the live tracks."""
+        return sorted(self._tracks)
+
+    def reset(self) -> list[Track]:
+        """Drop every track (e.g. when a source restarts its clock); returns their LOST reports."""
+        reports = [track.to_track(TrackStatus.LOST) for track in self._tracks.values()]
+        self._tracks.clear()
+        self._t_ns = None
+        return sorted(reports, key=lambda tr: tr.track_id)
+
+    # ------------------------------------------------------------------ steps
+    def _check_time(self, t_ns: int, advance: bool = True) -> int:
+        if isinstance(t_ns, bool) or not isinstance(t_ns, int | np.integer):
+            raise TypeError(f"t_ns must be an integer number of nanoseconds, got {t_ns!r}")
+        t_ns = int(t_ns)
+        if self._t_ns is not None and t_ns < self._t_ns:
+            raise ValueError(
+                f"t_ns={t_ns} is earlier than the previous update's t_ns={self._t_ns}; "
+                "call Tracker.reset() when a source restarts its clock"
+            )
+        if advance:
+            self._t_ns = t_ns
+        return t_ns
+
+    def _associate(self, measurements: list[PoseMeasurement]) -> tuple[list[tuple[int, int]], list[int]]:
+        """Gated nearest-neighbour assignment on the position innovation's Mahalanobis distance."""
+        ids = list(self._tracks)
+        if not ids or not measurements:
+            return [], list(range(len(measurements)))
+        cost = np.full((len(ids), len(measurements)), _FORBIDDEN)
+        for i, track_id in enumerate(ids):
+            filt = self._tracks[track_id].position
+            for j, m in enumerate(measurements):
+                d2 = filt.mahalanobis_sq(m.t, m.covariance[:3, :3])
+                if d2 <= self.config.position_gate_chi2:
+                    cost[i, j] = d2
+                else:
+                    log.debug("track %d: measurement %d gated out (d2 = %.1f)", track_id, j, d2)
+        rows, cols = linear_sum_assignment(cost)
+        pairs = [(ids[i], int(j)) for i, j in zip(rows, cols, strict=True) if cost[i, j] < _FORBIDDEN]
+        used = {j for _, j in pairs}
+        return pairs, [j for j in range(len(measurements)) if j not in used]
+
+    def _apply(
+        self, track: _TrackRecord, m: PoseMeasurement, score: float, keypoints_px: np.ndarray | None
+    ) -> None:
+        cfg = self.config
+        track.position.update(m.t, m.covariance[:3, :3])
+        rot_cov = m.covariance[3:, 3:]
+        candidates = [m.R]
+        if cfg.use_alternative and m.alternative is not None:
+            candidates.append(m.alternative[0])
+        d2 = [track.orientation.mahalanobis_sq(R, rot_cov) for R in candidates]
+        best = int(np.argmin(d2))
+        if d2[best] <= cfg.rotation_gate_chi2:
+            track.orientation.update(candidates[best], rot_cov)
+            track.rotation_misses = 0
+            if best == 1:
+                log.debug("track %d: used the alternative IPPE solution", track.track_id)
+        else:
+            track.rotation_misses += 1
+            log.debug("track %d: rotation gated out (d2 = %.1f)", track.track_id, d2[best])
+            if track.rotation_misses >= cfg.rotation_reset_after:
+                log.info(
+                    "track %d: orientation re-initialised after %d gated-out rotations",
+                    track.track_id,
+                    track.rotation_misses,
+                )
+                track.orientation = OrientationFilter(
+                    m.R, rot_cov, cfg.initial_angular_velocity_std_radps, cfg.angular_accel_std_radps2
+                )
+                track.rotation_misses = 0
+        track.hits += 1
+        track.frames += 1
+        track.window.append(True)
+        track.last_hit_ns = track.t_ns
+        track.score = score
+        track.keypoints_px = keypoints_px
+        track.reprojection_px = float(m.reprojection_px)
+        if track.status is TrackStatus.TENTATIVE:
+            if sum(track.window) >= cfg.confirm_hits:
+                track.status = TrackStatus.CONFIRMED
+                log.info("track %d confirmed", track.track_id)
+        else:
+            track.status = TrackStatus.CONFIRMED
+
+    def _miss(self, track: _TrackRecord) -> None:
+        track.frames += 1
+        track.window.append(False)
+        track.keypoints_px = None
+        if track.status is TrackStatus.CONFIRMED:
+            track.status = TrackStatus.COASTING
+
+    def _is_lost(self, track: _TrackRecord) -> bool:
+        if track.t_ns - track.last_hit_ns > self.config.max_coast_s * _NS_PER_S:
+            return True
+        return track.status is TrackStatus.TENTATIVE and track.frames >= self.config.confirm_window
+
+
+def _per_measurement(name: str, values, n: int, default) -> list:
+    if values is None:
+        return [default] * n
+    values = list(values)
+    if len(values) != n:
+        raise ValueError(f"{name} must have one entry per measurement ({n}), got {len(values)}")
+    return values
