@@ -1,0 +1,284 @@
+"""Streaming training sampler: network-ready crops and labels, rendered on the fly, no files.
+
+Each sample imitates what the daemon's localiser hands the keypoint network: a drone somewhere in a
+1080p frame (30 to 600 px across, any attitude, partly outside the frame at times), cropped around
+its box with ``dronekey.crop.CropPolicy``'s scale and jitter, and resized to the network input.
+Instead of rendering the whole 1080p frame, the drone is rendered straight into the crop through an
+equivalent camera (the full camera's intrinsics shifted and scaled to the crop), at the crop's
+native resolution capped at twice the input size; background, blur and noise are applied at that
+resolution, then the crop is resized exactly as ``crop_square`` would. About 1 in 10 samples has no
+drone (for the presence score).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from dronekey.camera import CameraModel
+from dronekey.crop import CropPolicy, crop_square, to_normalised
+from dronekey.drone_spec import load_spec
+from dronekey.rotations import ned_from_camera, rotation_from_euler_deg
+
+from .annotations import HIDDEN
+from .backgrounds import BackgroundSource
+from .effects import camera_response, draw_distractors, draw_occluder, jpeg_roundtrip, sensor_noise
+from .mesh import DroneStyle, build_mesh
+from .renderer import Lighting, render_drone
+
+__all__ = ["CropSample", "CropSampler", "SamplerConfig"]
+
+FRAME_W, FRAME_H = 1920, 1080
+
+
+@dataclass(frozen=True)
+class SamplerConfig:
+    """What the sampler draws. Sizes are drone extents (propeller discs included) in a 1080p frame."""
+
+    crop: CropPolicy = field(default_factory=CropPolicy)
+    size_px: tuple[float, float] = (30.0, 600.0)
+    negative_fraction: float = 0.1
+    uniform_rotation_fraction: float = 0.2
+    drones: tuple[tuple[str, float], ...] = (("mini2", 0.75), ("air2s", 0.25))
+    hfov_deg: tuple[float, float] = (50.0, 90.0)
+    truncation_prob: float = 0.08
+    occlusion_prob: float = 0.12
+    distractor_prob: float = 0.3
+    motion_blur_prob: float = 0.3
+    defocus_prob: float = 0.2
+    jpeg_prob: float = 0.5
+    render_cap: float = 2.0  # render at most this times the input size, then area-resize
+
+    def __post_init__(self) -> None:
+        lo, hi = self.size_px
+        if not 0 < lo <= hi:
+            raise ValueError(f"size_px must satisfy 0 < min <= max, got {self.size_px}")
+        if not 0 <= self.negative_fraction < 1:
+            raise ValueError(f"negative_fraction must be in [0, 1), got {self.negative_fraction}")
+
+
+@dataclass(frozen=True)
+class CropSample:
+    """One training example.
+
+    image : (S, S, 3) uint8 BGR network input.
+    keypoints : (4, 2) float32 normalised crop units (0 = left/top edge, 1 = right/bottom edge).
+    visibility : (4,) int, 2 visible / 1 hidden (zeros without a drone).
+    present : whether a drone is in the crop.
+    area : the drone box's area in normalised crop units^2 (the OKS scale; 0 without a drone).
+    """
+
+    image: np.ndarray
+    keypoints: np.ndarray
+    visibility: np.ndarray
+    present: bool
+    area: float
+
+
+class CropSampler:
+    """Draws ``CropSample`` objects forever; reproducible for a given seed.
+
+    Parameters
+    ----------
+    config : SamplerConfig
+    seed : int
+    backgrounds : path, optional
+        Folder of photos mixed into the procedural backgrounds.
+    pool_size : int
+        Number of full 1080p backgrounds kept; one is replaced every ``refresh_every`` samples.
+    """
+
+    def __init__(
+        self,
+        config: SamplerConfig | None = None,
+        seed: int = 0,
+        backgrounds: str | Path | None = None,
+        pool_size: int = 16,
+        refresh_every: int = 48,
+    ) -> None:
+        self.config = config or SamplerConfig()
+        self.rng = np.random.default_rng(seed)
+        self._bg_source = BackgroundSource(backgrounds)
+        self._pool_size = max(1, pool_size)
+        self._pool: list[np.ndarray] = []
+        self._refresh_every = max(1, refresh_every)
+        self._count = 0
+        names = [n for n, _ in self.config.drones]
+        probs = np.array([p for _, p in self.config.drones], dtype=np.float64)
+        self._specs = [load_spec(n) for n in names]
+        self._spec_p = probs / probs.sum()
+
+    # ------------------------------------------------------------------ public
+    def sample(self) -> CropSample:
+        """One sample (a drone with probability 1 - negative_fraction)."""
+        self._count += 1
+        bg = self._background()
+        if self.rng.random() < self.config.negative_fraction:
+            return self._negative(bg)
+        for _ in range(20):  # a pose can land fully outside the frame; draw again
+            out = self._positive(bg)
+            if out is not None:
+                return out
+        return self._negative(bg)
+
+    def batch(self, n: int) -> dict[str, np.ndarray]:
+        """``n`` samples stacked: image (n,S,S,3) uint8, keypoints (n,4,2), visibility, present, area."""
+        samples = [self.sample() for _ in range(n)]
+        return {
+            "image": np.stack([s.image for s in samples]),
+            "keypoints": np.stack([s.keypoints for s in samples]),
+            "visibility": np.stack([s.visibility for s in samples]),
+            "present": np.array([s.present for s in samples]),
+            "area": np.array([s.area for s in samples], dtype=np.float32),
+        }
+
+    # ------------------------------------------------------------------ internals
+    def _background(self) -> np.ndarray:
+        if len(self._pool) < self._pool_size:
+            self._pool.append(self._bg_source.draw(FRAME_H, FRAME_W, self.rng))
+            return self._pool[-1]
+        if self._count % self._refresh_every == 0:
+            self._pool[int(self.rng.integers(self._pool_size))] = self._bg_source.draw(
+                FRAME_H, FRAME_W, self.rng
+            )
+        return self._pool[int(self.rng.integers(self._pool_size))]
+
+    def _camera(self) -> CameraModel:
+        k1 = self.rng.uniform(-0.15, 0.03)
+        dist = np.array([k1, -0.2 * k1 * self.rng.uniform(0, 1), 0.0, 0.0, 0.0])
+        return CameraModel.from_fov(FRAME_W, FRAME_H, self.rng.uniform(*self.config.hfov_deg), dist=dist)
+
+    def _rotation(self) -> np.ndarray:
+        """Body -> camera: mostly flight-like attitudes seen from a camera pitched up, some uniform."""
+        rng = self.rng
+        if rng.random() < self.config.uniform_rotation_fraction:
+            return Rotation.random(rng=rng).as_matrix()
+        yaw = rng.uniform(-180, 180)
+        pitch, roll = np.clip(rng.normal(0, 18, 2), -60, 60)
+        R_ned_body = rotation_from_euler_deg(yaw, pitch, roll)
+        R_ned_cam = ned_from_camera(0.0, rng.uniform(-20, 75), rng.normal(0, 4))
+        return R_ned_cam.T @ R_ned_body
+
+    def _positive(self, bg: np.ndarray) -> CropSample | None:
+        rng, cfg = self.rng, self.config
+        S = cfg.crop.input_size
+        spec = self._specs[int(rng.choice(len(self._specs), p=self._spec_p))]
+        camera = self._camera()
+        size = math.exp(rng.uniform(math.log(cfg.size_px[0]), math.log(cfg.size_px[1])))
+        z = camera.fx * spec.extent_m / size
+        margin = -size / 3 if rng.random() < cfg.truncation_prob else size / 2
+        u = rng.uniform(margin, FRAME_W - margin) if 2 * margin < FRAME_W else FRAME_W / 2
+        v = rng.uniform(margin, FRAME_H - margin) if 2 * margin < FRAME_H else FRAME_H / 2
+        t = z * np.array([(u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy, 1.0])
+        R = self._rotation()
+        style = DroneStyle.random(rng)
+        mesh = build_mesh(spec)
+        # The drone's true box in the full frame (every part, clipped to the frame) fixes the crop,
+        # exactly as the evaluation crops around the annotated box.
+        box = _clip_box(camera.project_body(mesh.vertices, R, t))
+        if box is None:
+            return None
+        kp_full = camera.project_body(spec.keypoints_3d, R, t)
+        roi = cfg.crop.roi(box, rng)
+        x0, y0, side = roi
+        r = int(min(side, cfg.render_cap * S))
+        s = r / side
+        K = camera.K.copy()  # the same camera seen through the crop: shift, then scale
+        K[0, 0] *= s
+        K[1, 1] *= s
+        K[0, 2] = (K[0, 2] - x0 + 0.5) * s - 0.5
+        K[1, 2] = (K[1, 2] - y0 + 0.5) * s - 0.5
+        crop_cam = CameraModel(r, r, K, camera.dist)
+
+        img = _cut(bg, roi, r)
+        blur = (0.0, 0.0)
+        if rng.random() < cfg.motion_blur_prob:
+            ang, length = rng.uniform(0, 2 * math.pi), rng.uniform(0, 0.12) * size * s
+            blur = (length * math.cos(ang), length * math.sin(ang))
+        defocus = rng.uniform(0.3, 0.02 * size * s + 0.5) if rng.random() < cfg.defocus_prob else 0.0
+        ann = render_drone(img, crop_cam, mesh, R, t, style, Lighting.random(rng), blur, defocus)
+        if ann is None:
+            return None
+        _blank_outside_frame(img, roi, s)
+        vis = ann.visibility.copy()
+        outside = (kp_full[:, 0] < -0.5) | (kp_full[:, 0] > FRAME_W - 0.5)
+        outside |= (kp_full[:, 1] < -0.5) | (kp_full[:, 1] > FRAME_H - 0.5)
+        vis[outside] = HIDDEN
+        self._clutter(img, ann.bbox_xywh, ann.keypoints_px, vis, size * s)
+        img = _resize(self._camera_effects(img), S)
+        kp = to_normalised(kp_full, roi).astype(np.float32)
+        area = box[2] * box[3] / side**2
+        return CropSample(img, kp, vis, True, float(area))
+
+    def _negative(self, bg: np.ndarray) -> CropSample:
+        rng, cfg = self.rng, self.config
+        S = cfg.crop.input_size
+        side = int(math.exp(rng.uniform(math.log(cfg.size_px[0] * cfg.crop.scale), math.log(cfg.size_px[1]))))
+        x0 = int(rng.integers(-side // 4, FRAME_W - side + side // 4 + 1))
+        y0 = int(rng.integers(-side // 4, max(FRAME_H - side + side // 4, -side // 4) + 1))
+        roi = (x0, y0, side)
+        r = int(min(side, cfg.render_cap * S))
+        s = r / side
+        img = _cut(bg, roi, r)
+        if rng.random() < 0.6:
+            draw_distractors(img, rng, int(rng.integers(1, 4)), (0.05 * r, 0.5 * r))
+        _blank_outside_frame(img, roi, s)
+        img = _resize(self._camera_effects(img), S)
+        return CropSample(img, np.zeros((4, 2), np.float32), np.zeros(4, np.int64), False, 0.0)
+
+    def _clutter(self, img: np.ndarray, box, kp: np.ndarray, vis: np.ndarray, size: float) -> None:
+        rng, cfg = self.rng, self.config
+        if rng.random() < cfg.distractor_prob:
+            draw_distractors(img, rng, int(rng.integers(1, 4)), (0.08 * size, 0.6 * size))
+        if rng.random() < cfg.occlusion_prob:
+            mask = draw_occluder(img, rng, box, cover=rng.uniform(0.05, 0.4))
+            h, w = mask.shape
+            for i, (u, v) in enumerate(kp):
+                iu, iv = int(round(u)), int(round(v))
+                if 0 <= iu < w and 0 <= iv < h and mask[iv, iu]:
+                    vis[i] = HIDDEN
+
+    def _camera_effects(self, img: np.ndarray) -> np.ndarray:
+        rng, cfg = self.rng, self.config
+        if rng.random() < 0.8:
+            img = camera_response(img, rng)
+        img = sensor_noise(img, rng)
+        if rng.random() < cfg.jpeg_prob:
+            img = jpeg_roundtrip(img, int(rng.integers(30, 96)))
+        return img
+
+
+def _clip_box(uv: np.ndarray) -> tuple[float, float, float, float] | None:
+    """Box (x, y, w, h) of projected points clipped to the frame, None if (nearly) outside it."""
+    x0, y0 = max(uv[:, 0].min(), -0.5), max(uv[:, 1].min(), -0.5)
+    x1, y1 = min(uv[:, 0].max(), FRAME_W - 0.5), min(uv[:, 1].max(), FRAME_H - 0.5)
+    if x1 - x0 < 2 or y1 - y0 < 2:
+        return None
+    return float(x0), float(y0), float(x1 - x0), float(y1 - y0)
+
+
+def _cut(frame: np.ndarray, roi: tuple[int, int, int], r: int) -> np.ndarray:
+    """The roi of a full frame at r x r pixels (black outside the frame), as crop_square does."""
+    return crop_square(frame, roi, r).copy()
+
+
+def _blank_outside_frame(img: np.ndarray, roi: tuple[int, int, int], s: float) -> None:
+    """Black out crop pixels whose centre falls outside the full frame (truncation at the edge)."""
+    x0, y0, _ = roi
+    r = img.shape[0]
+    c = (np.arange(r) + 0.5) / s - 0.5
+    u, v = c + x0, c + y0
+    img[:, (u < -0.5) | (u > FRAME_W - 0.5)] = 0
+    img[(v < -0.5) | (v > FRAME_H - 0.5), :] = 0
+
+
+def _resize(img: np.ndarray, S: int) -> np.ndarray:
+    r = img.shape[0]
+    if r == S:
+        return img
+    return cv2.resize(img, (S, S), interpolation=cv2.INTER_AREA if r > S else cv2.INTER_LINEAR)
