@@ -1,0 +1,506 @@
+"""The MAVLink output (DESIGN.md §6.2): heartbeat, target messages, two-way commands, signing.
+
+What goes out, all MAVLink 2 from our own system/component ids:
+
+- HEARTBEAT once a second while the pipeline is healthy (see ``MavlinkSink.set_healthy``);
+- TARGET_RELATIVE (511) per track update, in the sensor's FRD frame (``messages`` module);
+- TARGET_ABSOLUTE (510) and ADSB_VEHICLE (246) per track update when the camera's geodetic pose
+  is configured;
+- replies to PING, MAV_CMD_REQUEST_MESSAGE and MAV_CMD_SET_MESSAGE_INTERVAL (``commands`` module).
+
+Threads: the daemon's ``SinkWorker`` calls ``handle_update``; a housekeeping thread sends the
+heartbeat, (re)opens the link with backoff and saves the signing timestamp; a receive thread parses
+what ground stations send and answers. One lock serialises the pymavlink encoder/parser, whose
+sequence numbers and signing state are not thread-safe. Nothing here blocks on the network: UDP
+sends never wait, and a link that cannot be opened (TCP peer absent, serial device missing) is
+retried in the background while messages for it are dropped and counted.
+"""
+
+from __future__ import annotations
+
+import collections
+import contextlib
+import importlib.metadata
+import logging
+import os
+import threading
+import time
+from collections.abc import Iterable
+from pathlib import Path
+
+import numpy as np
+
+from dronekey.daemon.geo import CameraGeo
+from dronekey.daemon.sinks.base import FrameUpdate, Sink
+from dronekey.types import Track, TrackStatus
+
+from . import messages
+from .commands import CommandHandler
+from .dialect import load_dialect
+from .link import open_link, validate_url
+from .signing import (
+    SAVE_INTERVAL_S,
+    SigningTimestampStore,
+    default_state_dir,
+    now_signing_timestamp,
+    read_signing_key,
+)
+from .streams import StreamRates
+from .target_state import (
+    DEFAULT_ICAO_BASE,
+    PUBLISHED_STATUSES,
+    target_geodetic,
+    validate_icao_base,
+    validate_statuses,
+)
+
+__all__ = ["DEFAULT_COMPID", "DEFAULT_SYSID", "DEFAULT_URL", "MavlinkSink"]
+
+log = logging.getLogger(__name__)
+
+DEFAULT_URL = "udpout:127.0.0.1:14550"
+DEFAULT_SYSID = 42
+DEFAULT_COMPID = 191  # MAV_COMP_ID_ONBOARD_COMPUTER
+
+_TICK_S = 0.1
+_RECV_POLL_S = 0.2
+_RETRY_MIN_S, _RETRY_MAX_S = 1.0, 30.0
+_TRACK_STALE_S = 5.0
+_REFUSAL_LOG_PERIOD_S = 60.0
+_MSG_TARGET_ABSOLUTE, _MSG_TARGET_RELATIVE, _MSG_ADSB_VEHICLE = 510, 511, 246
+
+
+def _package_version() -> str:
+    try:
+        return importlib.metadata.version("dronekey")
+    except importlib.metadata.PackageNotFoundError:
+        return "0.0.0"
+
+
+class MavlinkSink(Sink):
+    """Publish tracks over MAVLink 2 and answer ground stations.
+
+    Parameters
+    ----------
+    url : pymavlink connection string (``link.validate_url`` lists the accepted forms).
+    sysid : our MAVLink system id, 1..254 (255 is the ground stations' and pymavlink's default).
+    compid : our component id, 1..255 (default 191, MAV_COMP_ID_ONBOARD_COMPUTER).
+    signing_key_file : file with the 32-byte signing key; signing is off when None.
+    camera_geo : the camera's geodetic pose; TARGET_ABSOLUTE and ADSB_VEHICLE are sent only with it.
+    signing_state_dir : folder of the signing timestamp file
+        (``mavlink-signing-<sysid>-<compid>.timestamp``); default ``$STATE_DIRECTORY`` or the key's folder.
+    mav_type : HEARTBEAT's MAV_TYPE; default MAV_TYPE_ONBOARD_CONTROLLER (not taken for a vehicle).
+    statuses : track statuses that are published (default confirmed and coasting).
+    icao_base : first 24-bit ADS-B address of the tracks' block (``target_state.icao_address``).
+    simulated : set ADSB_VEHICLE's SIMULATED flag (for ``sim://`` sources).
+    health_timeout_s : the heartbeat stops when neither a frame update nor ``set_healthy(True)``
+        came for this long (a stalled or hung pipeline), s.
+    heartbeat_period_s : seconds between heartbeats (1 Hz by MAVLink convention).
+    dialect_cache_dir : where the generated dialect lives (``dialect.load_dialect``).
+
+    Health: the daemon calls ``set_healthy(bool)`` when the pipeline's state changes, or puts
+    ``"healthy": bool`` in the status dict it gives ``handle_status``; frame updates also count as
+    signs of life. Heartbeats go out while the last word was healthy and a sign of life came within
+    ``health_timeout_s``.
+    """
+
+    name = "mavlink"
+
+    def __init__(
+        self,
+        url: str = DEFAULT_URL,
+        sysid: int = DEFAULT_SYSID,
+        compid: int = DEFAULT_COMPID,
+        signing_key_file: str | os.PathLike | None = None,
+        camera_geo: CameraGeo | None = None,
+        *,
+        signing_state_dir: str | os.PathLike | None = None,
+        mav_type: int | None = None,
+        statuses: Iterable[TrackStatus | str] = PUBLISHED_STATUSES,
+        icao_base: int = DEFAULT_ICAO_BASE,
+        simulated: bool = False,
+        health_timeout_s: float = 5.0,
+        heartbeat_period_s: float = 1.0,
+        dialect_cache_dir: str | os.PathLike | None = None,
+    ) -> None:
+        self._url = validate_url(url)
+        if not isinstance(sysid, int) or not 1 <= sysid <= 254:
+            raise ValueError(f"sysid must be an integer in 1..254, got {sysid!r}")
+        if not isinstance(compid, int) or not 1 <= compid <= 255:
+            raise ValueError(f"compid must be an integer in 1..255, got {compid!r}")
+        if camera_geo is not None and not isinstance(camera_geo, CameraGeo):
+            raise TypeError(f"camera_geo must be a CameraGeo or None, got {type(camera_geo).__name__}")
+        if not health_timeout_s > 0:
+            raise ValueError(f"health_timeout_s must be > 0, got {health_timeout_s!r}")
+        if not heartbeat_period_s > 0:
+            raise ValueError(f"heartbeat_period_s must be > 0, got {heartbeat_period_s!r}")
+        self._sysid, self._compid = sysid, compid
+        self._geo = camera_geo
+        self._statuses = validate_statuses(statuses)
+        self._icao_base = validate_icao_base(icao_base)
+        self._simulated = bool(simulated)
+        self._health_timeout_ns = int(health_timeout_s * 1e9)
+        self._heartbeat_period_s = float(heartbeat_period_s)
+
+        self._key: bytes | None = None
+        self._ts_store: SigningTimestampStore | None = None
+        if signing_key_file is not None:
+            self._key = read_signing_key(signing_key_file)
+            state_dir = (
+                Path(signing_state_dir)
+                if signing_state_dir is not None
+                else default_state_dir(signing_key_file)
+            )
+            self._ts_store = SigningTimestampStore(state_dir / f"mavlink-signing-{sysid}-{compid}.timestamp")
+
+        self._d = load_dialect(dialect_cache_dir)
+        self._mav_type = self._d.MAV_TYPE_ONBOARD_CONTROLLER if mav_type is None else int(mav_type)
+        self._q_sensor = messages.sensor_quaternion(camera_geo)
+        self._version = _package_version()
+        streams = [_MSG_TARGET_RELATIVE] + ([_MSG_TARGET_ABSOLUTE, _MSG_ADSB_VEHICLE] if camera_geo else [])
+        self._rates = StreamRates(streams)
+        self._handler = CommandHandler(
+            self._d, sysid, compid, self._rates, self._request_message, self._default_interval_us
+        )
+
+        self._io_lock = threading.Lock()  # the connection and its pymavlink encoder/parser
+        self._state_lock = threading.Lock()  # health, latest messages, counters
+        self._conn = None
+        self._retry_s = _RETRY_MIN_S
+        self._next_open_mono = 0.0
+        self._last_link_error: str | None = None
+        self._last_signing_ts = 0
+        self._healthy = True
+        self._last_alive_ns: int | None = None
+        self._latest: dict[int, tuple[int, dict[int, object]]] = {}
+        self._last_update_ns: int | None = None
+        self._update_interval_us = 0.0
+        self._sent: collections.Counter = collections.Counter()
+        self._send_errors = 0
+        self._last_send_error: str | None = None
+        self._refused = 0
+        self._last_refusal_log = -_REFUSAL_LOG_PERIOD_S
+        self._commands = 0
+
+        self._stop = threading.Event()
+        self._open_link()
+        self._threads = [
+            threading.Thread(target=self._housekeeping_loop, name="mavlink-housekeeping", daemon=True),
+            threading.Thread(target=self._receive_loop, name="mavlink-receive", daemon=True),
+        ]
+        for t in self._threads:
+            t.start()
+
+    # ------------------------------------------------------------------ public API
+
+    @property
+    def sysid(self) -> int:
+        return self._sysid
+
+    @property
+    def compid(self) -> int:
+        return self._compid
+
+    @property
+    def dialect(self):
+        """The generated dialect module in use."""
+        return self._d
+
+    def set_healthy(self, healthy: bool) -> None:
+        """Tell the sink whether the pipeline is healthy; heartbeats go out only while it is."""
+        with self._state_lock:
+            if bool(healthy) != self._healthy:
+                log.info(
+                    "MAVLink heartbeat %s", "resumes (pipeline healthy)" if healthy else "stops (unhealthy)"
+                )
+            self._healthy = bool(healthy)
+            if healthy:
+                self._last_alive_ns = time.monotonic_ns()
+
+    def is_healthy(self) -> bool:
+        """Whether a heartbeat would go out now."""
+        with self._state_lock:
+            alive = self._last_alive_ns
+            return (
+                self._healthy and alive is not None and time.monotonic_ns() - alive <= self._health_timeout_ns
+            )
+
+    def handle_status(self, status: dict) -> None:
+        """Take ``status["healthy"]`` (bool) if the daemon's status carries it."""
+        if isinstance(status, dict) and "healthy" in status:
+            self.set_healthy(bool(status["healthy"]))
+
+    def handle_update(self, update: FrameUpdate) -> None:
+        """Send the target messages of the published tracks of one frame."""
+        now = time.monotonic_ns()
+        with self._state_lock:
+            self._last_alive_ns = now
+            if self._last_update_ns is not None:  # exponential average of the update interval
+                dt_us = (now - self._last_update_ns) / 1000.0
+                avg = self._update_interval_us
+                self._update_interval_us = dt_us if avg == 0.0 else avg + 0.1 * (dt_us - avg)
+            self._last_update_ns = now
+        for track in update.tracks:
+            if track.status == TrackStatus.LOST:
+                self._forget(track.track_id)
+            elif track.status in self._statuses:
+                self._publish_track(track, now)
+        self._evict_stale(now)
+
+    def health(self) -> dict:
+        """Link state and counters for the daemon's status message."""
+        with self._state_lock:
+            return {
+                "url": self._url,
+                "link_open": self._conn is not None,
+                "last_link_error": self._last_link_error,
+                "heartbeat": self._healthy and self._last_alive_ns is not None,
+                "signing": self._key is not None,
+                "sent": dict(self._sent),
+                "send_errors": self._send_errors,
+                "last_send_error": self._last_send_error,
+                "refused_unsigned": self._refused,
+                "commands": self._commands,
+                "intervals_us": {m: self._rates.interval_us(m) for m in self._rates.message_ids},
+            }
+
+    def close(self) -> None:
+        """Stop the threads, save the signing timestamp, close the link. Idempotent."""
+        if self._stop.is_set():
+            return
+        self._stop.set()
+        for t in self._threads:
+            t.join(1.0)
+        with self._io_lock:
+            self._save_signing_timestamp()
+            conn, self._conn = self._conn, None
+        if conn is not None:
+            try:
+                conn.close()
+            except Exception as exc:
+                log.debug("closing the MAVLink link: %s", exc)
+
+    # ------------------------------------------------------------------ publishing
+
+    def _publish_track(self, track: Track, now_ns: int) -> None:
+        try:
+            out = self._encode_track(track)
+        except (ValueError, FloatingPointError) as exc:
+            log.debug("track %s not published: %s", track.track_id, exc)
+            return
+        with self._state_lock:
+            self._latest[track.track_id] = (now_ns, dict(out))
+        for msg_id, msg in out:
+            if self._rates.should_send(msg_id, track.track_id, now_ns):
+                self._send(msg)
+
+    def _encode_track(self, track: Track) -> list[tuple[int, object]]:
+        if not np.all(np.isfinite(np.asarray(track.position_m, dtype=np.float64))):
+            raise ValueError("position is not finite")
+        t_us = messages.unix_time_us(track.t_ns)
+        out = [(_MSG_TARGET_RELATIVE, messages.target_relative(self._d, track, self._q_sensor, t_us))]
+        if self._geo is not None:
+            state = target_geodetic(track, self._geo)
+            out.append(
+                (_MSG_TARGET_ABSOLUTE, messages.target_absolute(self._d, track, state, self._geo, t_us))
+            )
+            out.append(
+                (
+                    _MSG_ADSB_VEHICLE,
+                    messages.adsb_vehicle(self._d, track, state, self._icao_base, self._simulated),
+                )
+            )
+        return out
+
+    def _forget(self, track_id: int) -> None:
+        with self._state_lock:
+            self._latest.pop(track_id, None)
+        self._rates.forget(track_id)
+
+    def _evict_stale(self, now_ns: int) -> None:
+        limit = now_ns - int(_TRACK_STALE_S * 1e9)
+        with self._state_lock:
+            stale = [tid for tid, (t, _) in self._latest.items() if t < limit]
+        for tid in stale:
+            self._forget(tid)
+
+    def _request_message(self, message_id: int) -> list | None:
+        """Messages for MAV_CMD_REQUEST_MESSAGE: None if we never send ``message_id``."""
+        d = self._d
+        if message_id == d.MAVLINK_MSG_ID_HEARTBEAT:
+            return [messages.heartbeat(d, self._mav_type)] if self.is_healthy() else []
+        if message_id == d.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
+            return [messages.autopilot_version(d, self._version)]
+        if message_id == 300 and hasattr(d, "MAVLink_protocol_version_message"):
+            # PROTOCOL_VERSION: only in pymavlink wheels older than its 2025 removal from common.xml.
+            return [d.MAVLink_protocol_version_message(200, 200, 200, [0] * 8, [0] * 8)]
+        if self._rates.supports(message_id):
+            with self._state_lock:
+                return [m[message_id] for _, m in self._latest.values() if message_id in m]
+        return None
+
+    def _default_interval_us(self, message_id: int) -> int:
+        with self._state_lock:
+            return round(self._update_interval_us)
+
+    # ------------------------------------------------------------------ link and I/O
+
+    def _send(self, msg) -> bool:
+        with self._io_lock:
+            conn = self._conn
+            if conn is None:
+                self._count_send_error("link not open")
+                return False
+            try:
+                if self._key is not None:
+                    sig = conn.mav.signing
+                    sig.timestamp = max(sig.timestamp, now_signing_timestamp())
+                conn.mav.send(msg)
+                if self._key is not None:
+                    self._last_signing_ts = conn.mav.signing.timestamp
+            except Exception as exc:  # pymavlink's writers swallow socket errors; serial ones may not
+                self._count_send_error(f"{type(exc).__name__}: {exc}")
+                if isinstance(exc, OSError):
+                    self._drop_link_locked(exc)
+                return False
+        with self._state_lock:
+            self._sent[msg.get_type()] += 1
+        return True
+
+    def _count_send_error(self, what: str) -> None:
+        with self._state_lock:
+            self._send_errors += 1
+            self._last_send_error = what
+
+    def _open_link(self) -> None:
+        """Open the link if it is closed and its retry time has come; never raises."""
+        with self._io_lock:
+            if self._conn is not None or self._stop.is_set() or time.monotonic() < self._next_open_mono:
+                return
+            try:
+                conn = open_link(self._url, self._d, self._sysid, self._compid)
+            except Exception as exc:
+                msg = f"{type(exc).__name__}: {exc}"
+                if msg != self._last_link_error:
+                    log.warning(
+                        "MAVLink link %s cannot be opened (%s); retrying in the background", self._url, msg
+                    )
+                self._last_link_error = msg
+                self._next_open_mono = time.monotonic() + self._retry_s
+                self._retry_s = min(self._retry_s * 2, _RETRY_MAX_S)
+                return
+            if self._key is not None:
+                start = max(self._ts_store.initial_timestamp(), self._last_signing_ts + 1)
+                conn.setup_signing(
+                    self._key,
+                    sign_outgoing=True,
+                    allow_unsigned_callback=self._refuse_unsigned,
+                    initial_timestamp=start,
+                    link_id=1,
+                )
+                self._last_signing_ts = start
+            self._conn = conn
+            self._retry_s = _RETRY_MIN_S
+            self._last_link_error = None
+        log.info(
+            "MAVLink on %s as system %d component %d (signing %s)",
+            self._url,
+            self._sysid,
+            self._compid,
+            "on" if self._key is not None else "off",
+        )
+
+    def _drop_link_locked(self, exc: BaseException) -> None:
+        """Close a failed link (caller holds ``_io_lock``); the housekeeping thread reopens it."""
+        self._save_signing_timestamp()
+        conn, self._conn = self._conn, None
+        self._last_link_error = f"{type(exc).__name__}: {exc}"
+        log.warning(
+            "MAVLink link %s failed (%s); reopening in the background", self._url, self._last_link_error
+        )
+        self._next_open_mono = time.monotonic() + self._retry_s
+        if conn is not None:
+            with contextlib.suppress(Exception):
+                conn.close()
+
+    def _refuse_unsigned(self, mav, msg_id: int) -> bool:
+        """pymavlink's allow_unsigned_callback: with signing on, nothing unsigned or badly signed passes."""
+        now = time.monotonic()
+        with self._state_lock:
+            self._refused += 1
+            if now - self._last_refusal_log >= _REFUSAL_LOG_PERIOD_S:
+                self._last_refusal_log = now
+                log.warning(
+                    "MAVLink: refused an unsigned or wrongly signed message (id %d); %d so far",
+                    msg_id,
+                    self._refused,
+                )
+        return False
+
+    def _save_signing_timestamp(self) -> None:
+        if self._ts_store is not None and self._last_signing_ts:
+            self._ts_store.save(self._last_signing_ts)
+
+    def _housekeeping_loop(self) -> None:
+        next_heartbeat = 0.0
+        next_save = time.monotonic() + SAVE_INTERVAL_S
+        while not self._stop.wait(_TICK_S):
+            now = time.monotonic()
+            try:
+                self._open_link()
+                if now >= next_heartbeat and self.is_healthy():
+                    self._send(messages.heartbeat(self._d, self._mav_type))
+                    next_heartbeat = now + self._heartbeat_period_s
+                if now >= next_save:
+                    with self._io_lock:
+                        self._save_signing_timestamp()
+                    next_save = now + SAVE_INTERVAL_S
+            except Exception:  # a bug here must not silently end the heartbeat for good
+                log.exception("MAVLink housekeeping failed; continuing")
+                self._stop.wait(1.0)
+
+    def _receive_loop(self) -> None:
+        while not self._stop.is_set():
+            conn = self._conn
+            if conn is None:
+                self._stop.wait(_RECV_POLL_S)
+                continue
+            try:
+                self._receive_once(conn)
+            except Exception:  # a bug in a handler must not end the two-way link for good
+                log.exception("MAVLink receive failed; continuing")
+                self._stop.wait(1.0)
+
+    def _receive_once(self, conn) -> None:
+        """Wait up to ``_RECV_POLL_S`` for data on ``conn``, parse it and answer what asks for it."""
+        from pymavlink import mavutil
+
+        try:
+            if not conn.select(_RECV_POLL_S):
+                return
+            data = conn.recv()
+        except Exception as exc:
+            if not self._stop.is_set():
+                with self._io_lock:
+                    if self._conn is conn:
+                        self._drop_link_locked(exc)
+            return
+        if not data:
+            if isinstance(conn, mavutil.mavtcp) or getattr(conn, "portdead", False):
+                with self._io_lock:  # readable and empty: the stream peer closed
+                    if self._conn is conn:
+                        self._drop_link_locked(ConnectionError("peer closed the connection"))
+            return
+        with self._io_lock:
+            if self._conn is not conn:
+                return
+            received = conn.mav.parse_buffer(data) or []
+        for msg in received:
+            if msg.get_type() == "BAD_DATA":
+                continue
+            replies = self._handler.handle(msg)
+            if replies:
+                with self._state_lock:
+                    self._commands += 1
+            for reply in replies:
+                self._send(reply)
