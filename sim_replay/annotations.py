@@ -8,17 +8,20 @@ live in ``sim_replay.sequence_io``; the renderer produces these objects directly
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
 from dronekey.camera import CameraModel
 
-__all__ = ["HIDDEN", "VISIBLE", "DroneAnnotation", "FrameRecord", "SequenceAnnotations"]
+__all__ = ["HIDDEN", "UNLABELLED", "VISIBLE", "DroneAnnotation", "FrameRecord", "SequenceAnnotations"]
 
 # COCO visibility flags as used here: 2 visible; 1 labelled but hidden (behind the body, behind an
 # occluder, or outside the frame). Coordinates are always the exact projection, whatever the flag.
+# 0 (not labelled, coordinates meaningless) never comes from our renderer, only from outside files.
 VISIBLE = 2
 HIDDEN = 1
+UNLABELLED = 0
 
 
 @dataclass(frozen=True)
@@ -26,16 +29,23 @@ class DroneAnnotation:
     """The drone in one frame.
 
     keypoints_px : (4, 2) full-frame pixels (distorted, i.e. as imaged), keypoint order of the spec.
-    visibility : (4,) int, ``VISIBLE`` or ``HIDDEN``.
+    visibility : (4,) int, ``VISIBLE`` or ``HIDDEN`` (``UNLABELLED`` only in outside files).
     bbox_xywh : box of the whole drone (propeller discs included) in pixels, clipped to the frame.
     rotation : (3, 3) body -> camera. translation : (3,) body origin in the camera frame, metres.
+        Both None when the source file has keypoints but no 6DoF (a 2DroneKey file); our own
+        sequences always carry them.
     """
 
     keypoints_px: np.ndarray
     visibility: np.ndarray
     bbox_xywh: tuple[float, float, float, float]
-    rotation: np.ndarray
-    translation: np.ndarray
+    rotation: np.ndarray | None
+    translation: np.ndarray | None
+
+    @property
+    def has_pose(self) -> bool:
+        """True when the 6DoF ground truth (rotation and translation) is known."""
+        return self.rotation is not None and self.translation is not None
 
     @property
     def area(self) -> float:
@@ -57,7 +67,11 @@ class FrameRecord:
 
 @dataclass
 class SequenceAnnotations:
-    """A whole sequence: camera, drone model, and the per-frame records in frame order."""
+    """A whole sequence: camera, drone model, and the per-frame records in frame order.
+
+    ``base_dir`` is the folder the records' ``file_name`` are relative to (the JSON's folder when
+    the sequence was read from a file; None for a sequence that was never written).
+    """
 
     name: str
     camera: CameraModel
@@ -67,6 +81,7 @@ class SequenceAnnotations:
     frames: list[FrameRecord] = field(default_factory=list)
     info: dict = field(default_factory=dict)
     keypoint_names: tuple[str, ...] = ("prop1", "prop2", "prop3", "prop4")
+    base_dir: Path | None = None
 
     def annotated(self) -> list[FrameRecord]:
         """Frames that carry a drone annotation."""
