@@ -109,9 +109,14 @@ class OrientationFilter:
         self._R_ref = self.rotation
         self._kf.x[:3] = 0.0
 
-    def predicted_rotation(self, dt: float) -> np.ndarray:
-        """Body -> camera rotation after ``dt`` seconds, without changing the filter."""
-        return self._R_ref @ rotation_exp(self._kf.x[:3] + max(dt, 0.0) * self._kf.x[3:])
+    def predicted(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """Body -> camera rotation after ``dt`` seconds and its covariance (camera-frame rotation
+        vector, rad^2), without changing the filter."""
+        dt = max(dt, 0.0)
+        R = self._R_ref @ rotation_exp(self._kf.x[:3] + dt * self._kf.x[3:])
+        F = _transition(dt)
+        P = F @ self._kf.P @ F.T + (self._process_noise(dt) if dt > 0.0 else 0.0)
+        return R, R @ P[:3, :3] @ R.T
 
     def predict(self, dt: float) -> None:
         """Advance the state by ``dt`` seconds (no-op for dt <= 0)."""

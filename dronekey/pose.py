@@ -6,7 +6,7 @@ rotation and t the body origin (centroid of the hubs) in the camera frame, metre
 Pipeline of :meth:`PoseEstimator.estimate`:
 
 1. validate the keypoints (shape, finite, inside the frame give or take a margin, no near-duplicate
-   or collinear points, a convex quadrilateral in spec order);
+   or collinear points, a quadrilateral in spec order whose edges do not cross);
 2. undistort them with the camera model and solve ``cv2.solvePnPGeneric(..., SOLVEPNP_IPPE)``,
    which returns the two poses that planar (4 coplanar points) PnP cannot tell apart well;
 3. refine both with Levenberg-Marquardt on the *distorted* pixels, where the keypoint noise lives;
@@ -40,6 +40,9 @@ _LM_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 1e-10)
 # Central differences of the covariance Jacobian: step of the rotation vector (rad); the translation
 # step is the same times max(1 m, range).
 _STEP_ROTATION_RAD = 1e-6
+# Chi-square, 2 degrees of freedom (8 residuals - 6 pose parameters), 99.9 %: the largest summed
+# squared reprojection error, in keypoint_sigma_px^2, that noise explains.
+_CROSSED_CHI2 = 13.8
 _SIGNED_AXES = np.concatenate([np.eye(3), -np.eye(3)])
 _SMALL_ROTATIONS = np.stack([cv2.Rodrigues(_STEP_ROTATION_RAD * a)[0] for a in _SIGNED_AXES])
 
@@ -64,7 +67,7 @@ class RejectionCode(StrEnum):
     OUTSIDE_FRAME = "outside_frame"
     DUPLICATE = "duplicate"
     COLLINEAR = "collinear"
-    NOT_CONVEX = "not_convex"
+    CROSSED = "crossed"
     SOLVER_FAILED = "solver_failed"
     BEHIND_CAMERA = "behind_camera"
     UNOBSERVABLE = "unobservable"
@@ -132,11 +135,20 @@ def paper_basis_in_body(spec: DroneSpec) -> np.ndarray:
     return _paper_frame(np.asarray(spec.keypoints_3d, dtype=np.float64))
 
 
-def _turn_signs(points: np.ndarray) -> np.ndarray:
-    """z of the cross products of consecutive edges of a closed polygon (N, 2)."""
-    edges = np.roll(points, -1, axis=0) - points
-    nxt = np.roll(edges, -1, axis=0)
-    return edges[:, 0] * nxt[:, 1] - edges[:, 1] * nxt[:, 0]
+def _cross2(o: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
+    """z of (a - o) x (b - o): > 0 when o -> a -> b turns counter-clockwise (x right, y up)."""
+    return float((a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0]))
+
+
+def _segments_cross(p1: np.ndarray, p2: np.ndarray, q1: np.ndarray, q2: np.ndarray) -> bool:
+    """True when the segments p1-p2 and q1-q2 properly cross (each separates the other's ends)."""
+    return _cross2(p1, p2, q1) * _cross2(p1, p2, q2) < 0.0 and _cross2(q1, q2, p1) * _cross2(q1, q2, p2) < 0.0
+
+
+def _quad_is_crossed(points: np.ndarray) -> bool:
+    """True when the quadrilateral 1-2-3-4 (4, 2) is self-intersecting (a 'bow tie')."""
+    p = points
+    return _segments_cross(p[0], p[1], p[2], p[3]) or _segments_cross(p[1], p[2], p[3], p[0])
 
 
 class PoseEstimator:
@@ -163,10 +175,14 @@ class PoseEstimator:
     min_aspect : float
         Ratio of the smallest to the largest singular value of the centred keypoints below which
         they count as collinear (an edge-on drone; about sin(elevation) of the view).
-    check_convexity : bool
-        Reject keypoints that do not form a convex quadrilateral in spec order. A convex planar
-        quadrilateral in front of the camera always projects to one, so this catches swapped or
-        misplaced keypoints before PnP turns them into a confident wrong pose.
+    check_order : bool
+        Reject keypoints whose quadrilateral in spec order crosses itself (a "bow tie") unless the
+        best pose reprojects them within noise. The hubs form a simple quadrilateral and so does
+        any view of it, so a crossed one means two keypoints swapped (the pose then misfits by many
+        pixels and would be about 180 deg wrong) or noise that pushed a keypoint of a small or
+        oblique drone past another (the pose fits within noise and is as good as any other). The
+        noise test is chi-square with 2 degrees of freedom at 99.9 %: summed squared reprojection
+        error <= 13.8 keypoint_sigma_px^2.
     min_depth_m : float
         Every keypoint of a solution must be at least this far in front of the camera (z).
     ambiguity_chi2 : float
@@ -190,9 +206,9 @@ class PoseEstimator:
         method: PoseMethod | str = PoseMethod.IPPE,
         refine: bool = True,
         frame_margin_frac: float = 0.1,
-        min_separation_px: float = 2.0,
-        min_aspect: float = 0.02,
-        check_convexity: bool = True,
+        min_separation_px: float = 1.0,
+        min_aspect: float = 0.01,
+        check_order: bool = True,
         min_depth_m: float = 0.05,
         ambiguity_chi2: float = 9.0,
         prior_max_offset_frac: float = 0.5,
@@ -223,14 +239,12 @@ class PoseEstimator:
                 f"spec {spec.name!r}: keypoints_3d must be coplanar for IPPE; their out-of-plane "
                 f"spread is {sv[2]:.3g} m"
             )
-        if check_convexity:
-            _, _, Vt = np.linalg.svd(X - X.mean(axis=0))
-            turns = _turn_signs((X - X.mean(axis=0)) @ Vt[:2].T)
-            if not (np.all(turns > 0) or np.all(turns < 0)):
-                raise ValueError(
-                    f"spec {spec.name!r}: keypoints_3d do not form a convex quadrilateral in keypoint "
-                    "order; pass check_convexity=False for such a layout"
-                )
+        _, _, Vt = np.linalg.svd(X - X.mean(axis=0))
+        if check_order and _quad_is_crossed((X - X.mean(axis=0)) @ Vt[:2].T):
+            raise ValueError(
+                f"spec {spec.name!r}: keypoints_3d in keypoint order form a crossed quadrilateral; "
+                "list them around the drone or pass check_order=False"
+            )
         self.camera = camera
         self.spec = spec
         self.keypoint_sigma_px = float(keypoint_sigma_px)
@@ -238,12 +252,13 @@ class PoseEstimator:
         self.frame_margin_px = float(frame_margin_frac) * max(camera.width, camera.height)
         self.min_separation_px = float(min_separation_px)
         self.min_aspect = float(min_aspect)
-        self.check_convexity = bool(check_convexity)
+        self.check_order = bool(check_order)
         self.min_depth_m = float(min_depth_m)
         self.ambiguity_chi2 = float(ambiguity_chi2)
         self.prior_max_offset_frac = float(prior_max_offset_frac)
         self.max_reprojection_px = None if max_reprojection_px is None else float(max_reprojection_px)
         self._X = X
+        self._plane_mirror = np.eye(3) - 2.0 * np.outer(Vt[2], Vt[2])  # reflection about the hub plane
         self._paper_B = paper_basis_in_body(spec)
 
     # ------------------------------------------------------------------ public
@@ -286,6 +301,17 @@ class PoseEstimator:
             return PoseRejection(
                 RejectionCode.BEHIND_CAMERA,
                 f"every PnP solution puts a keypoint behind the camera (nearest keypoint z = {depths} m)",
+            )
+        best_fit = min(in_front, key=lambda c: c.sq_error_px2)
+        if (
+            self.check_order
+            and best_fit.sq_error_px2 > _CROSSED_CHI2 * self.keypoint_sigma_px**2
+            and _quad_is_crossed(uv)
+        ):
+            return PoseRejection(
+                RejectionCode.CROSSED,
+                "the keypoints in spec order form a crossed quadrilateral that no pose explains "
+                f"(best reprojection {best_fit.rms_px:.1f} px RMS): two keypoints are swapped or misplaced",
             )
         chosen, other = self._choose(in_front, prior_checked)
         if self.max_reprojection_px is not None and chosen.rms_px > self.max_reprojection_px:
@@ -351,14 +377,6 @@ class PoseEstimator:
                 f"keypoints are nearly collinear (aspect {aspect:.4f} < min_aspect={self.min_aspect:g}): "
                 "the drone is seen edge-on or the points are wrong",
             )
-        if self.check_convexity:
-            turns = _turn_signs(uv)
-            if not (np.all(turns > 0) or np.all(turns < 0)):
-                return PoseRejection(
-                    RejectionCode.NOT_CONVEX,
-                    "keypoints do not form a convex quadrilateral in spec order (a keypoint is misplaced "
-                    f"or the order is wrong); edge turn signs {np.sign(turns).astype(int).tolist()}",
-                )
         return None
 
     def _solve(self, uv: np.ndarray) -> list[_Candidate] | PoseRejection:
@@ -376,6 +394,8 @@ class PoseEstimator:
         candidates = []
         for rvec, tvec in zip(rvecs, tvecs, strict=True):
             rvec, tvec = rvec.reshape(3, 1).copy(), tvec.reshape(3, 1).copy()
+            if np.mean((self._X @ cv2.Rodrigues(rvec)[0].T + tvec.ravel())[:, 2]) < 0.0:
+                rvec, tvec = self._mirrored(rvec, tvec)
             if self.refine:
                 try:
                     rvec, tvec = cv2.solvePnPRefineLM(
@@ -392,6 +412,21 @@ class PoseEstimator:
         if not candidates:
             return PoseRejection(RejectionCode.SOLVER_FAILED, "PnP gave no finite solution")
         return candidates
+
+    def _mirrored(self, rvec: np.ndarray, tvec: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The pose whose keypoints are the point reflection through the camera centre of (rvec, tvec)'s.
+
+        Points P and -P have the same image, and for a planar target -P is again a rigid pose:
+        with M the reflection about the hub plane (M X = X on the plane), -(R X + t) = R' X + t' with
+        R' = -R M (det +1) and t' = -t - R (I - M) c, c the plane's centroid. IPPE can return the
+        behind-camera branch when noise makes the quadrilateral inconsistent with a planar target in
+        front of the camera (typically concave); its reflection is in front with the same
+        reprojection error and refinement takes it from there.
+        """
+        R = cv2.Rodrigues(rvec)[0]
+        R_front = -R @ self._plane_mirror
+        t_front = -tvec.ravel() - R @ (np.eye(3) - self._plane_mirror) @ self._X.mean(axis=0)
+        return cv2.Rodrigues(R_front)[0], t_front.reshape(3, 1)
 
     def _in_front(self, c: _Candidate) -> bool:
         return bool(np.all((self._X @ c.R.T + c.t)[:, 2] >= self.min_depth_m))

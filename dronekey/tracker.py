@@ -59,7 +59,12 @@ class TrackerConfig:
     rotation_gate_chi2 : the same for the rotation innovation.
     rotation_reset_after : after this many consecutive gated-out rotations of an updated track, the
         orientation is re-initialised from the measurement (the track had locked onto a wrong one).
-    use_alternative : try a measurement's alternative IPPE solution when its rotation fails the gate.
+    use_alternative, alternative_max_extra_px : when a measurement's rotation fails the gate, use its
+        alternative IPPE solution instead if that one passes and reprojects at most
+        ``alternative_max_extra_px`` worse (so only when the keypoints cannot tell the two apart:
+        a clearly better fit is never traded for the track's opinion, or a track that locked onto
+        the wrong solution could never leave it). The estimator already does this with the
+        prediction as prior; this catches measurements made without one.
     confirm_hits, confirm_window : a track is confirmed after ``confirm_hits`` hits within its first
         ``confirm_window`` frames (update calls); otherwise it is dropped.
     max_coast_s : a track without a measurement for longer than this (seconds) is lost.
@@ -74,6 +79,7 @@ class TrackerConfig:
     rotation_gate_chi2: float = 16.27
     rotation_reset_after: int = 5
     use_alternative: bool = True
+    alternative_max_extra_px: float = 1.0
     confirm_hits: int = 3
     confirm_window: int = 5
     max_coast_s: float = 1.0
@@ -154,7 +160,7 @@ class _TrackRecord:
     ) -> None:
         cov = measurement.covariance
         self.track_id = track_id
-        self.status = TrackStatus.TENTATIVE
+        self.status = TrackStatus.CONFIRMED if config.confirm_hits <= 1 else TrackStatus.TENTATIVE
         self.born_ns = t_ns
         self.t_ns = t_ns
         self.last_hit_ns = t_ns
@@ -249,6 +255,11 @@ class Tracker:
         for i, m in enumerate(measurements):
             if not isinstance(m, PoseMeasurement):
                 raise TypeError(f"measurements[{i}] must be a PoseMeasurement, got {type(m).__name__}")
+            if np.shape(m.covariance) != (6, 6) or not np.all(np.isfinite(m.covariance)):
+                raise ValueError(
+                    f"measurements[{i}].covariance must be a finite 6x6 matrix, "
+                    f"got shape {np.shape(m.covariance)}"
+                )
         scores = _per_measurement("scores", scores, len(measurements), float("nan"))
         keypoints_px = _per_measurement("keypoints_px", keypoints_px, len(measurements), None)
 
@@ -287,19 +298,8 @@ class Tracker:
         for track in self._tracks.values():
             dt = (t_ns - track.t_ns) / _NS_PER_S
             x, P = track.position.predicted(dt)
-            R = track.orientation.predicted_rotation(dt)
-            # The rotation covariance is not propagated here: the crop and the prior need the pose.
-            out.append(
-                TrackPrediction(
-                    track.track_id,
-                    track.status,
-                    t_ns,
-                    R,
-                    x[:3],
-                    P[:3, :3],
-                    track.orientation.rotation_cov_cam,
-                )
-            )
+            R, rotation_cov = track.orientation.predicted(dt)
+            out.append(TrackPrediction(track.track_id, track.status, t_ns, R, x[:3], P[:3, :3], rotation_cov))
         return out
 
     def state(self, track_id: int) -> TrackState:
@@ -374,7 +374,11 @@ class Tracker:
         track.position.update(m.t, m.covariance[:3, :3])
         rot_cov = m.covariance[3:, 3:]
         candidates = [m.R]
-        if cfg.use_alternative and m.alternative is not None:
+        if (
+            cfg.use_alternative
+            and m.alternative is not None
+            and m.alternative[2] <= m.reprojection_px + cfg.alternative_max_extra_px
+        ):
             candidates.append(m.alternative[0])
         d2 = [track.orientation.mahalanobis_sq(R, rot_cov) for R in candidates]
         best = int(np.argmin(d2))

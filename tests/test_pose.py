@@ -178,7 +178,7 @@ GOOD = keypoints(*ORACLE_POSES[0])
         ),
         (np.array([GOOD[0], GOOD[0] + 0.5, GOOD[2], GOOD[3]]), RejectionCode.DUPLICATE),
         (GOOD + np.array([3000.0, 0.0]), RejectionCode.OUTSIDE_FRAME),
-        (GOOD[[0, 2, 1, 3]], RejectionCode.NOT_CONVEX),
+        (GOOD[[0, 2, 1, 3]], RejectionCode.CROSSED),
     ],
     ids=[
         "nan",
@@ -200,6 +200,42 @@ def test_degenerate_keypoints_are_rejected_with_a_reason(keypoints_px, code):
     assert result.code == code
     assert len(result.reason) > 20
     assert not result
+
+
+def test_random_views_with_noise_never_raise_and_stay_in_front():
+    # Uniformly random attitudes 1.5-15 m away with 2 px noise: tiny, oblique and edge-on drones
+    # included. Noise makes some quadrilaterals concave or crossed; IPPE then returns the
+    # behind-camera branch, which the estimator reflects to the front.
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(4)
+    estimator = PoseEstimator(CAMERA, SPEC)
+    accepted = 0
+    for R in Rotation.random(300, random_state=4).as_matrix():
+        z = rng.uniform(1.5, 15.0)
+        t = np.array([rng.uniform(-0.3, 0.3) * z, rng.uniform(-0.2, 0.2) * z, z])
+        result = estimator.estimate(keypoints(R, t) + rng.normal(0.0, 2.0, (4, 2)), prior=(R, t))
+        if isinstance(result, PoseRejection):
+            assert result.code in (RejectionCode.DUPLICATE, RejectionCode.COLLINEAR, RejectionCode.CROSSED)
+            continue
+        accepted += 1
+        assert np.all((SPEC.keypoints_3d @ result.R.T + result.t)[:, 2] > 0)
+        assert np.all(np.isfinite(result.covariance))
+        assert abs(result.t[2] - z) < 0.5 * z
+    assert accepted >= 290
+
+
+def test_noise_that_crosses_the_quadrilateral_of_a_thin_drone_is_not_an_order_error():
+    from dronekey.pose import _quad_is_crossed
+
+    R, t = elevated(20, 0, 0, elevation_deg=8), np.array([0.3, 0.1, 10.0])  # 28 px wide, 3 px tall
+    estimator = PoseEstimator(CAMERA, SPEC)
+    rng = np.random.default_rng(0)
+    crossed = [uv for uv in (keypoints(R, t) + rng.normal(0.0, 1.0, (4, 2)) for _ in range(200))]
+    crossed = [uv for uv in crossed if _quad_is_crossed(uv)]
+    assert len(crossed) >= 5  # 10 of 200
+    results = [estimator.estimate(uv) for uv in crossed]
+    assert all(isinstance(r, PoseMeasurement) for r in results), [r for r in results if not r]
 
 
 def test_solution_closer_than_min_depth_is_rejected():

@@ -94,6 +94,18 @@ def test_alternative_ippe_solution_is_used_when_the_chosen_one_fails_the_gate():
     assert geodesic_angle_deg(quat_wxyz_to_matrix(track.quaternion_wxyz), seen_from_below(20.0)) < 1.0
 
 
+def test_clearly_worse_alternative_is_not_used_to_keep_a_wrong_track_orientation():
+    tracker = Tracker(TrackerConfig(rotation_reset_after=3))
+    position = np.array([0.0, 0.0, 5.0])
+    wrong, right = seen_from_below(20.0) @ rotation_from_euler_deg(0.0, 70.0, 0.0), seen_from_below(20.0)
+    for k in range(10):  # the track started on the wrong IPPE branch
+        tracker.update(t_ns(k), [measurement(wrong, position)])
+    for k in range(10, 13):  # the keypoints now clearly favour the right one (alternative 6 px worse)
+        m = measurement(right, position, alternative=(wrong, position, 6.3))
+        (track,) = tracker.update(t_ns(k), [m])
+    assert geodesic_angle_deg(quat_wxyz_to_matrix(track.quaternion_wxyz), right) < 1.0
+
+
 def test_orientation_is_reinitialised_after_repeated_gated_rotations():
     config = TrackerConfig(rotation_reset_after=4)
     tracker = Tracker(config)
@@ -158,6 +170,12 @@ def test_coasting_track_is_reported_lost_once_after_max_coast_s():
     assert all(r[0].status is TrackStatus.COASTING for k, r in reports.items() if k < first_lost)
     assert all(r == [] for k, r in reports.items() if k > first_lost)
     assert tracker.track_ids == []
+
+
+def test_single_hit_confirmation_confirms_at_birth():
+    tracker = Tracker(TrackerConfig(confirm_hits=1, confirm_window=1))
+    (track,) = tracker.update(0, [measurement(seen_from_below(0.0), [0.0, 0.0, 4.0])])
+    assert track.status is TrackStatus.CONFIRMED
 
 
 def test_tentative_track_without_enough_hits_is_dropped():
@@ -259,6 +277,9 @@ def test_predict_extrapolates_pose():
     assert prediction.track_id == 1
     np.testing.assert_allclose(prediction.t, [0.2, 0.0, 4.0], atol=0.01)
     assert geodesic_angle_deg(prediction.R, seen_from_below(20.0)) < 0.5
+    (soon,) = tracker.predict(t_ns(15))
+    assert np.trace(prediction.position_cov) > np.trace(soon.position_cov)
+    assert np.trace(prediction.rotation_cov) > np.trace(soon.rotation_cov)
 
 
 def test_time_going_backwards_is_refused_and_reset_reports_every_track_lost():
