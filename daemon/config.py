@@ -1,0 +1,408 @@
+"""The daemon's configuration: one YAML file validated by pydantic, overridden by command-line flags.
+
+Every section forbids unknown keys, so a typo is an error, not a silently ignored setting. A
+problem is reported as one line naming the dotted key, the bad value and what is allowed::
+
+    config error: zenoh.mode = 'router' (from --zenoh-mode): input should be 'peer' or 'client'
+
+``load_config`` is the only entry point the CLI needs; ``DaemonConfig`` documents every key (see
+also ``daemon/config.example.yaml`` and ``docs/daemon.md``).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import yaml
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    FilePath,
+    ValidationError,
+    field_validator,
+)
+
+from dronekey.daemon.errors import UsageError
+from dronekey.daemon.geo import CameraGeo, GeoError
+
+__all__ = ["ConfigError", "DaemonConfig", "config_to_yaml", "format_validation_error", "load_config"]
+
+_CAMERA_ID = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
+_ZENOH_ENDPOINT = re.compile(r"^[a-z0-9]+/\S+$")
+_HOST_PORT = re.compile(r"^(?P<host>\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]*):(?P<port>\d{1,5})$")
+
+
+class ConfigError(UsageError):
+    """The config file or the flags that override it are invalid; one line per problem."""
+
+
+class _Section(BaseModel):
+    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+
+
+Seconds = Annotated[float, Field(gt=0, le=3600)]
+
+
+class V4l2Settings(_Section):
+    """Capture settings applied to ``/dev/videoN`` sources (ignored by other sources)."""
+
+    width: int | None = Field(None, gt=0, le=16384, description="requested frame width, px")
+    height: int | None = Field(None, gt=0, le=16384, description="requested frame height, px")
+    fps: float | None = Field(None, gt=0, le=1000, description="requested frame rate")
+    fourcc: str | None = Field(None, description="pixel format, e.g. MJPG, YUYV, H264")
+
+    @field_validator("fourcc")
+    @classmethod
+    def _four_chars(cls, v: str | None) -> str | None:
+        if v is not None and (len(v) != 4 or not v.isascii()):
+            raise ValueError("must be 4 ASCII characters such as MJPG, YUYV or H264")
+        return v
+
+
+class NetworkSettings(_Section):
+    """Settings of rtsp/http/tcp/udp sources (OpenCV's FFmpeg backend)."""
+
+    open_timeout_s: Seconds = Field(10.0, description="give up one connection attempt after this")
+    rtsp_transport: Literal["tcp", "udp"] = Field("tcp", description="RTSP over TCP survives lossy links")
+
+
+class SimSettings(_Section):
+    """Settings of ``sim://<preset>`` sources."""
+
+    seed: int | None = Field(None, ge=0, description="random seed; null: the preset's own (11, 12, 13)")
+    frames: int | None = Field(None, gt=0, description="frames to render; null: the preset's length")
+
+
+class SourceConfig(_Section):
+    """Where frames come from and how the capture thread treats them."""
+
+    uri: str | None = Field(
+        None, description="video file, image folder, /dev/videoN, rtsp|http|tcp|udp URL or sim://preset"
+    )
+    realtime: bool = Field(False, description="pace files, image folders and sim at their frame rate")
+    loop: bool = Field(False, description="restart a file, image folder or sim at its end")
+    queue_size: int = Field(2, ge=1, le=256, description="frames buffered from live sources (drop oldest)")
+    stall_timeout_s: Seconds = Field(5.0, description="live source with no frame for this long is stalled")
+    reconnect_initial_s: Seconds = Field(0.5, description="first reconnection delay (doubles each try)")
+    reconnect_max_s: Seconds = Field(30.0, description="longest reconnection delay")
+    max_reconnects: int | None = Field(
+        None, ge=0, description="failed attempts in a row before exit 3; null: retry forever"
+    )
+    image_fps: float = Field(30.0, gt=0, le=1000, description="frame rate of image folders (timestamps)")
+    max_frames: int | None = Field(None, gt=0, description="stop (exit 0) after this many frames")
+    v4l2: V4l2Settings = Field(default_factory=V4l2Settings)
+    network: NetworkSettings = Field(default_factory=NetworkSettings)
+    sim: SimSettings = Field(default_factory=SimSettings)
+
+    @field_validator("uri")
+    @classmethod
+    def _not_blank(cls, v: str | None) -> str | None:
+        if v is not None and not v.strip():
+            raise ValueError("must not be empty")
+        return v
+
+
+class CameraConfig(_Section):
+    """Identity, intrinsics and (optional) geodetic pose of the camera."""
+
+    id: str = Field("cam0", description="camera id: Zenoh key segment and MCAP frame ids")
+    calibration: FilePath | None = Field(
+        None, description="OpenCV calibration YAML; null: the file's sidecar, the sim preset's camera"
+    )
+    geo: str | None = Field(None, description="LAT,LON,ALT_M[,YAW,PITCH,ROLL] (degrees, metres)")
+
+    @field_validator("id")
+    @classmethod
+    def _id_chars(cls, v: str) -> str:
+        if not _CAMERA_ID.match(v):
+            raise ValueError("must be 1-64 characters of A-Z a-z 0-9 _ - . (it is a Zenoh key segment)")
+        return v
+
+    @field_validator("geo")
+    @classmethod
+    def _geo_parses(cls, v: str | None) -> str | None:
+        if v is not None:
+            try:
+                CameraGeo.parse(v)
+            except GeoError as exc:
+                raise ValueError(str(exc)) from None
+        return v
+
+    def camera_geo(self) -> CameraGeo | None:
+        """The parsed geodetic pose, or None when not configured."""
+        return CameraGeo.parse(self.geo) if self.geo is not None else None
+
+
+class ModelConfig(_Section):
+    """The keypoint network and the drone it looks for."""
+
+    path: FilePath | None = Field(None, description="ONNX model; null: the model shipped with the package")
+    drone: str = Field("mini2", description="drone spec name (mini2, air2s) or a spec YAML path")
+
+    @field_validator("drone")
+    @classmethod
+    def _known_drone(cls, v: str) -> str:
+        from dronekey.drone_spec import available_specs
+
+        if v.endswith((".yaml", ".yml")):
+            if not Path(v).is_file():
+                raise ValueError("drone spec file not found")
+            return v
+        names = available_specs()
+        if v not in names:
+            raise ValueError(f"unknown drone; allowed: {', '.join(names)} or a spec .yaml path")
+        return v
+
+
+class ZenohConfig(_Section):
+    """Zenoh session (DESIGN.md §6.1)."""
+
+    enabled: bool = True
+    mode: Literal["peer", "client"] = "peer"
+    connect: list[str] = Field(default_factory=list, description="endpoints, e.g. tcp/192.168.1.10:7447")
+    listen: list[str] = Field(default_factory=list, description="endpoints, e.g. tcp/0.0.0.0:7447")
+    scouting: bool = Field(True, description="multicast scouting for peers and routers")
+
+    @field_validator("connect", "listen")
+    @classmethod
+    def _endpoints(cls, v: list[str]) -> list[str]:
+        for ep in v:
+            if not _ZENOH_ENDPOINT.match(ep):
+                raise ValueError(f"endpoint {ep!r} must look like tcp/HOST:PORT or udp/HOST:PORT")
+        return v
+
+
+class MavlinkConfig(_Section):
+    """MAVLink 2 output (DESIGN.md §6.2)."""
+
+    enabled: bool = True
+    url: str = Field("udpout:127.0.0.1:14550", description="pymavlink connection string")
+    sysid: int = Field(42, ge=1, le=254, description="our MAVLink system id (255 is for ground stations)")
+    compid: int = Field(191, ge=1, le=255, description="our component id (191: onboard computer)")
+    signing_key: FilePath | None = Field(None, description="32-byte key file; null: unsigned")
+
+
+class Sbs1Config(_Section):
+    """SBS-1 (BaseStation) TCP output; needs camera.geo."""
+
+    listen: str | None = Field(None, description="HOST:PORT to listen on, e.g. 0.0.0.0:30003")
+
+    @field_validator("listen")
+    @classmethod
+    def _host_port(cls, v: str | None) -> str | None:
+        if v is None:
+            return v
+        m = _HOST_PORT.match(v)
+        if not m or not m["host"] or not 0 <= int(m["port"]) < 65536:
+            raise ValueError(
+                "must be HOST:PORT with a port in 0-65535 (0: any free port), e.g. 0.0.0.0:30003"
+            )
+        return v
+
+
+class McapConfig(_Section):
+    """MCAP log (DESIGN.md §6.3); the keys are ``McapSink``'s parameters."""
+
+    enabled: bool = True
+    dir: Path | None = Field(None, description="log folder; null: $STATE_DIRECTORY/mcap or ./mcap")
+    image_rate_hz: float = Field(2.0, ge=0, le=120, description="camera images logged per second (0: none)")
+    image_max_width: int = Field(960, ge=16, le=16384, description="logged images are downscaled to this")
+    jpeg_quality: int = Field(80, ge=1, le=100)
+    rotate_size_mb: float = Field(1024.0, gt=0, description="start a new file at this size")
+    rotate_duration_s: float = Field(3600.0, gt=0, description="start a new file after this long")
+    retention_total_mb: float = Field(10240.0, gt=0, description="delete the oldest files beyond this total")
+    min_free_mb: float = Field(500.0, ge=0, description="delete the oldest files to keep this much disk free")
+    compression: Literal["zstd", "lz4", "none"] = "zstd"
+
+
+class SinksConfig(_Section):
+    """Settings shared by every output."""
+
+    queue_size: int = Field(64, ge=1, le=100000, description="updates queued per output (drop oldest)")
+
+
+class LogConfig(_Section):
+    """Logging and the status messages."""
+
+    level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = "INFO"
+    status_interval_s: Seconds = Field(1.0, description="status message to the outputs and the terminal")
+    journal_status_interval_s: Seconds = Field(
+        60.0, description="status as a plain log line when stderr is not a terminal (journald)"
+    )
+
+    @field_validator("level", mode="before")
+    @classmethod
+    def _upper(cls, v: Any) -> Any:
+        if isinstance(v, str) and v.upper() in ("DEBUG", "INFO", "WARNING", "ERROR"):
+            return v.upper()
+        return v
+
+
+class DaemonConfig(_Section):
+    """Everything ``dronekey-daemon`` can be told; each section is documented in ``docs/daemon.md``."""
+
+    source: SourceConfig = Field(default_factory=SourceConfig)
+    camera: CameraConfig = Field(default_factory=CameraConfig)
+    model: ModelConfig = Field(default_factory=ModelConfig)
+    zenoh: ZenohConfig = Field(default_factory=ZenohConfig)
+    mavlink: MavlinkConfig = Field(default_factory=MavlinkConfig)
+    sbs1: Sbs1Config = Field(default_factory=Sbs1Config)
+    mcap: McapConfig = Field(default_factory=McapConfig)
+    sinks: SinksConfig = Field(default_factory=SinksConfig)
+    log: LogConfig = Field(default_factory=LogConfig)
+
+
+# ---------------------------------------------------------------------------------------- loading
+def load_config(path: Path | None, overrides: dict[str, tuple[Any, str]] | None = None) -> DaemonConfig:
+    """Read ``path`` (if given), apply the flag overrides, validate, and resolve environment defaults.
+
+    Parameters
+    ----------
+    path : Path or None
+        YAML file; None for defaults only.
+    overrides : dict
+        Dotted key -> (value, flag that set it), e.g. ``{"zenoh.mode": ("client", "--zenoh-mode")}``.
+
+    Raises
+    ------
+    ConfigError
+        One line per problem, each naming the key, the bad value and what is allowed.
+    """
+    overrides = overrides or {}
+    data = {}
+    if path is not None:
+        data = _read_yaml(path)
+        _resolve_relative_paths(data, Path(path).parent)
+    for dotted, (value, _flag) in overrides.items():
+        _set_dotted(data, dotted, value)
+    try:
+        config = DaemonConfig.model_validate(data)
+    except ValidationError as exc:
+        origin = {dotted: flag for dotted, (_value, flag) in overrides.items()}
+        raise ConfigError(format_validation_error(exc, origin, path)) from None
+    if config.sbs1.listen is not None and config.camera.geo is None:
+        flag = overrides.get("sbs1.listen", (None, None))[1]
+        source = f" (from {flag})" if flag else ""
+        raise ConfigError(
+            f"config error: sbs1.listen = {config.sbs1.listen!r}{source}: the SBS-1 output needs "
+            "camera.geo (--camera-geo LAT,LON,ALT_M,YAW,PITCH,ROLL)"
+        )
+    if config.mcap.dir is None:
+        config.mcap.dir = _default_mcap_dir()
+    return config
+
+
+def _read_yaml(path: Path) -> dict:
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError(f"config error: file not found: {path}") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"config error: cannot read {path}: {exc}") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" line {mark.line + 1} column {mark.column + 1}" if mark is not None else ""
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise ConfigError(f"config error: {path}{where}: invalid YAML: {problem}") from None
+    if data is None:
+        return {}
+    if not isinstance(data, dict):
+        raise ConfigError(
+            f"config error: {path}: the top level must be a mapping of sections "
+            f"({', '.join(DaemonConfig.model_fields)}), got {type(data).__name__}"
+        )
+    return data
+
+
+# Keys holding local paths: relative values in a config file are relative to the file's folder.
+_PATH_KEYS = ("source.uri", "camera.calibration", "model.path", "mavlink.signing_key", "mcap.dir")
+
+
+def _resolve_relative_paths(data: dict, base: Path) -> None:
+    for dotted in _PATH_KEYS:
+        *parents, leaf = dotted.split(".")
+        node = data
+        for key in parents:
+            node = node.get(key) if isinstance(node, dict) else None
+        if not isinstance(node, dict) or not isinstance(node.get(leaf), str):
+            continue
+        value = node[leaf]
+        if "://" in value or Path(value).is_absolute() or not value.strip():
+            continue
+        node[leaf] = str(base / value)
+
+
+def _set_dotted(data: dict, dotted: str, value: Any) -> None:
+    *parents, leaf = dotted.split(".")
+    node = data
+    for key in parents:
+        child = node.setdefault(key, {})
+        if not isinstance(child, dict):  # the file's own type error is reported by validation
+            return
+        node = child
+    node[leaf] = value
+
+
+def _default_mcap_dir() -> Path:
+    state = os.environ.get("STATE_DIRECTORY")  # set by systemd's StateDirectory=
+    if state:
+        return Path(state.split(":")[0]) / "mcap"
+    return Path("mcap").absolute()
+
+
+# ---------------------------------------------------------------------------------------- errors
+def format_validation_error(
+    exc: ValidationError, origin: dict[str, str] | None = None, path: Path | None = None
+) -> str:
+    """One line per problem: ``config error: <key> = <value> (from <flag or file>): <what is allowed>``."""
+    origin = origin or {}
+    lines = []
+    for err in exc.errors(include_url=False):
+        loc = tuple(str(p) for p in err["loc"])
+        dotted = _dotted(loc)
+        field_key = ".".join(p for p in loc if not p.isdigit())
+        source = f" (from {origin[field_key]})" if field_key in origin else (f" (in {path})" if path else "")
+        if err["type"] == "extra_forbidden":
+            allowed = ", ".join(_allowed_keys(loc[:-1]))
+            lines.append(f"config error: {dotted}: unknown key{source}; allowed keys here: {allowed}")
+            continue
+        msg = err["msg"]
+        if err["type"] == "value_error":
+            msg = msg.removeprefix("Value error, ")
+        msg = msg[:1].lower() + msg[1:]
+        lines.append(f"config error: {dotted} = {_short_repr(err.get('input'))}{source}: {msg}")
+    return "\n".join(lines)
+
+
+def _dotted(loc: tuple[str, ...]) -> str:
+    out = ""
+    for part in loc:
+        out += f"[{part}]" if part.isdigit() else (f".{part}" if out else part)
+    return out
+
+
+def _allowed_keys(loc: tuple[str, ...]) -> list[str]:
+    model: type[BaseModel] = DaemonConfig
+    for part in loc:
+        field = model.model_fields.get(part)
+        annotation = getattr(field, "annotation", None)
+        if not (isinstance(annotation, type) and issubclass(annotation, BaseModel)):
+            return []
+        model = annotation
+    return list(model.model_fields)
+
+
+def _short_repr(value: Any, limit: int = 60) -> str:
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def config_to_yaml(config: DaemonConfig) -> str:
+    """The effective configuration as YAML (what ``--print-config`` prints); loads back unchanged."""
+    return yaml.safe_dump(config.model_dump(mode="json"), sort_keys=False, default_flow_style=False)

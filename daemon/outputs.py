@@ -1,0 +1,155 @@
+"""Build the configured outputs (Zenoh, MAVLink, MCAP, SBS-1), each behind its own ``SinkWorker``.
+
+Each sink module is imported only when its output is enabled, so a missing dependency or a broken
+output is reported by name (``zenoh output: ...``) instead of taking the others down at import. An
+output that is enabled but cannot start stops the daemon with exit code 2 and a line saying how to
+fix or disable it; running silently without a configured output would be worse.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable, Mapping
+from typing import Any
+
+from dronekey.camera import CameraModel
+from dronekey.daemon.config import DaemonConfig
+from dronekey.daemon.errors import UsageError
+from dronekey.daemon.sinks.base import Sink, SinkWorker
+
+__all__ = ["OutputContext", "build_outputs", "close_outputs"]
+
+log = logging.getLogger(__name__)
+
+
+class OutputContext:
+    """What the outputs need to know besides the config.
+
+    Parameters
+    ----------
+    camera : CameraModel
+        Intrinsics at the source's resolution.
+    model_info : mapping
+        ``name``, ``path``, ``sha256`` and more, for Zenoh's info queryable.
+    simulated : bool
+        True for ``sim://`` sources (ADS-B messages get their SIMULATED flag).
+    """
+
+    def __init__(self, camera: CameraModel, model_info: Mapping[str, Any], simulated: bool) -> None:
+        self.camera = camera
+        self.model_info = dict(model_info)
+        self.simulated = simulated
+
+
+def _zenoh(config: DaemonConfig, ctx: OutputContext) -> Sink:
+    from dronekey.daemon.sinks.zenoh_sink import ZenohSink
+
+    z = config.zenoh
+    return ZenohSink(
+        camera_id=config.camera.id,
+        camera=ctx.camera,
+        model_info=ctx.model_info,
+        camera_geo=config.camera.camera_geo(),
+        mode=z.mode,
+        connect=list(z.connect),
+        listen=list(z.listen),
+        scouting=z.scouting,
+    )
+
+
+def _mavlink(config: DaemonConfig, ctx: OutputContext) -> Sink:
+    from dronekey.daemon.mavlink import MavlinkSink
+
+    m = config.mavlink
+    return MavlinkSink(
+        url=m.url,
+        sysid=m.sysid,
+        compid=m.compid,
+        signing_key_file=m.signing_key,
+        camera_geo=config.camera.camera_geo(),
+        simulated=ctx.simulated,
+    )
+
+
+def _mcap(config: DaemonConfig, ctx: OutputContext) -> Sink:
+    from dronekey.daemon.sinks.mcap_sink import McapSink
+
+    m = config.mcap
+    return McapSink(
+        m.dir,
+        ctx.camera,
+        config.camera.id,
+        camera_geo=config.camera.camera_geo(),
+        image_rate_hz=m.image_rate_hz,
+        image_max_width=m.image_max_width,
+        jpeg_quality=m.jpeg_quality,
+        rotate_size_mb=m.rotate_size_mb,
+        rotate_duration_s=m.rotate_duration_s,
+        retention_total_mb=m.retention_total_mb,
+        min_free_mb=m.min_free_mb,
+        compression=m.compression,
+    )
+
+
+def _sbs1(config: DaemonConfig, ctx: OutputContext) -> Sink:
+    from dronekey.daemon.sinks.sbs1 import Sbs1Sink
+
+    return Sbs1Sink(config.sbs1.listen, config.camera.camera_geo())
+
+
+# name -> (enabled?, builder, flag that disables it)
+_OUTPUTS: dict[
+    str, tuple[Callable[[DaemonConfig], bool], Callable[[DaemonConfig, OutputContext], Sink], str]
+] = {
+    "zenoh": (lambda c: c.zenoh.enabled, _zenoh, "--no-zenoh"),
+    "mavlink": (lambda c: c.mavlink.enabled, _mavlink, "--no-mavlink"),
+    "mcap": (lambda c: c.mcap.enabled, _mcap, "--no-mcap"),
+    "sbs1": (lambda c: c.sbs1.listen is not None, _sbs1, "no --sbs1-listen"),
+}
+
+
+def build_outputs(config: DaemonConfig, ctx: OutputContext) -> dict[str, SinkWorker]:
+    """Start every enabled output; on failure close those already started and raise ``UsageError``."""
+    workers: dict[str, SinkWorker] = {}
+    for name, (enabled, build, disable_hint) in _OUTPUTS.items():
+        if not enabled(config):
+            continue
+        try:
+            sink = build(config, ctx)
+        except ImportError as exc:
+            close_outputs(workers, timeout_s=2.0)
+            raise UsageError(
+                f"{name} output unavailable ({exc}); install it or run with {disable_hint}"
+            ) from None
+        except (ValueError, TypeError, OSError) as exc:
+            close_outputs(workers, timeout_s=2.0)
+            raise UsageError(f"{name} output: {exc}") from None
+        except Exception:
+            close_outputs(workers, timeout_s=2.0)
+            raise
+        workers[name] = SinkWorker(sink, max_queue=config.sinks.queue_size)
+        log.info("output %s started", name)
+    if not workers:
+        log.warning("every output is disabled: tracks are shown here and nowhere else")
+    return workers
+
+
+def close_outputs(workers: Mapping[str, SinkWorker], timeout_s: float) -> list[str]:
+    """Drain and close every worker in parallel; returns the names still closing after ``timeout_s``."""
+    threads = {
+        name: threading.Thread(
+            target=worker.close,
+            kwargs={"timeout_s": max(0.1, timeout_s * 0.5)},
+            name=f"close-{name}",
+            daemon=True,
+        )
+        for name, worker in workers.items()
+    }
+    for thread in threads.values():
+        thread.start()
+    deadline = time.monotonic() + timeout_s
+    for thread in threads.values():
+        thread.join(max(0.0, deadline - time.monotonic()))
+    return [name for name, thread in threads.items() if thread.is_alive()]

@@ -1,0 +1,113 @@
+"""SIGTERM / SIGINT handling with a hard shutdown deadline.
+
+The first signal asks the main loop to stop (it closes the source and every output); a guard thread
+woken through ``signal.set_wakeup_fd`` (so it wakes even while the main thread is inside a long C
+call) ends the process with the signal's exit code if the orderly shutdown has not finished by the
+deadline. A second signal exits at once.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import signal
+import socket
+import sys
+import threading
+import time
+
+from dronekey.daemon.errors import ExitCode
+
+__all__ = ["SignalMonitor", "hard_exit"]
+
+log = logging.getLogger(__name__)
+
+_EXIT_CODES = {signal.SIGINT: ExitCode.SIGINT, signal.SIGTERM: ExitCode.SIGTERM}
+
+
+class SignalMonitor:
+    """Turns SIGTERM / SIGINT into a stop request, guarded by a hard deadline.
+
+    Parameters
+    ----------
+    deadline_s : float
+        Seconds after the first signal at which the process exits whatever it is doing.
+    """
+
+    def __init__(self, deadline_s: float = 5.0) -> None:
+        self.deadline_s = deadline_s
+        self.stop = threading.Event()
+        self.signum: int | None = None
+        self.requested_mono: float | None = None
+        self._done = threading.Event()
+        self._previous: dict[int, object] = {}
+        self._rsock: socket.socket | None = None
+        self._wsock: socket.socket | None = None
+        self._previous_wakeup_fd = -1
+
+    @property
+    def exit_code(self) -> ExitCode | None:
+        """130 or 143 once a signal arrived, else None."""
+        return None if self.signum is None else _EXIT_CODES[self.signum]
+
+    def install(self) -> None:
+        """Install the handlers (main thread only) and start the deadline guard."""
+        self._rsock, self._wsock = socket.socketpair()
+        self._wsock.setblocking(False)
+        self._previous_wakeup_fd = signal.set_wakeup_fd(self._wsock.fileno(), warn_on_full_buffer=False)
+        for signum in _EXIT_CODES:
+            self._previous[signum] = signal.signal(signum, self._handle)
+        threading.Thread(target=self._guard, name="shutdown-guard", daemon=True).start()
+
+    def uninstall(self) -> None:
+        """Restore the previous handlers and stop the guard (after an orderly shutdown)."""
+        self._done.set()
+        for signum, handler in self._previous.items():
+            signal.signal(signum, handler)
+        self._previous.clear()
+        signal.set_wakeup_fd(self._previous_wakeup_fd)
+        if self._wsock is not None:
+            self._wsock.close()
+            self._wsock = None
+
+    def finished(self) -> None:
+        """The orderly shutdown is over; the deadline no longer applies."""
+        self._done.set()
+
+    def _handle(self, signum: int, _frame) -> None:
+        if self.signum is not None:
+            log.error("second %s: exiting now", signal.Signals(signum).name)
+            hard_exit(_EXIT_CODES[signum])
+        self.signum = signum
+        self.requested_mono = time.monotonic()
+        log.info(
+            "%s: stopping (closing outputs, %.0f s at most)", signal.Signals(signum).name, self.deadline_s
+        )
+        self.stop.set()
+
+    def _guard(self) -> None:
+        """Wakes on the first signal byte, then enforces the deadline."""
+        rsock = self._rsock
+        while True:
+            try:
+                data = rsock.recv(16)
+            except OSError:
+                return
+            if not data or self._done.is_set():
+                return
+            signums = [b for b in data if b in _EXIT_CODES]
+            if signums:
+                break
+        if self._done.wait(self.deadline_s):
+            return
+        code = self.exit_code or _EXIT_CODES[signums[0]]
+        log.error("shutdown did not finish within %.0f s; exiting anyway", self.deadline_s)
+        hard_exit(code)
+
+
+def hard_exit(code: int) -> None:
+    for stream in (sys.stderr, sys.stdout):
+        with contextlib.suppress(OSError, ValueError):
+            stream.flush()
+    os._exit(int(code))

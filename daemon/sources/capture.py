@@ -1,0 +1,360 @@
+"""The capture thread: runs one ``FrameReader`` and feeds a bounded queue to the pipeline.
+
+Policy depends only on whether the source is live:
+
+- **live** (V4L2, network): the queue drops its oldest frame when the pipeline falls behind (the
+  daemon never lags real time) and counts the drop; a watchdog marks the source *stalled* when no
+  frame arrived for ``stall_timeout_s``; a lost source is reopened with exponential backoff
+  (``reconnect_initial_s`` doubling up to ``reconnect_max_s``), and after ``max_reconnects`` failed
+  attempts in a row it is *failed*.
+- **finite** (file, image folder, sim): every frame is delivered in order; the reader waits for
+  room in the queue (back-pressure, no drops), paces itself at the stream's rate with ``realtime``,
+  and restarts at its end with ``loop`` (timestamps keep increasing across passes).
+
+Corrupt frames (undecodable or malformed) are counted and skipped. ``busy_for_s`` tells how long
+the thread has been inside one reader call, so the runner can stop petting the systemd watchdog
+when a driver call hangs for good.
+"""
+
+from __future__ import annotations
+
+import collections
+import contextlib
+import logging
+import threading
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+from dronekey.daemon.config import SourceConfig
+from dronekey.daemon.sources.base import (
+    CapturedFrame,
+    FrameReader,
+    ReadResult,
+    SourceOpenError,
+    SourceState,
+)
+from dronekey.types import Frame
+
+__all__ = ["Capture", "CaptureStats", "FrameQueue"]
+
+log = logging.getLogger(__name__)
+
+
+class FrameQueue:
+    """Bounded frame queue: drop-oldest (live) or blocking (finite) when full.
+
+    Parameters
+    ----------
+    maxsize : int
+    drop_oldest : bool
+    """
+
+    def __init__(self, maxsize: int, drop_oldest: bool) -> None:
+        if maxsize < 1:
+            raise ValueError(f"maxsize must be >= 1, got {maxsize}")
+        self._items: collections.deque[CapturedFrame] = collections.deque()
+        self._maxsize = maxsize
+        self._drop_oldest = drop_oldest
+        self._cond = threading.Condition()
+        self.dropped = 0
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+    def put(self, item: CapturedFrame, stop: threading.Event) -> bool:
+        """Queue ``item``; a blocking queue waits for room. False if ``stop`` was set while waiting."""
+        with self._cond:
+            while len(self._items) >= self._maxsize:
+                if self._drop_oldest:
+                    self._items.popleft()
+                    self.dropped += 1
+                    break
+                if stop.is_set():
+                    return False
+                self._cond.wait(0.1)
+            self._items.append(item)
+            self._cond.notify_all()
+            return True
+
+    def get(self, timeout: float) -> CapturedFrame | None:
+        """The oldest frame, or None after ``timeout`` seconds without one."""
+        with self._cond:
+            if not self._items:
+                self._cond.wait(timeout)
+            if not self._items:
+                return None
+            item = self._items.popleft()
+            self._cond.notify_all()
+            return item
+
+    def wake(self) -> None:
+        """Wake a waiting ``get`` (the source ended or failed)."""
+        with self._cond:
+            self._cond.notify_all()
+
+
+@dataclass(frozen=True)
+class CaptureStats:
+    """A snapshot of the capture counters, for the status message."""
+
+    state: SourceState
+    frames: int  # frames decoded and queued (live drops included)
+    dropped: int  # live frames dropped because the pipeline was behind
+    corrupt: int  # undecodable or malformed frames skipped
+    reconnects: int  # successful reopenings after a loss
+    last_error: str | None
+    seconds_since_frame: float | None  # None before the first frame
+
+
+class Capture:
+    """One source on its own thread behind a ``FrameQueue`` (see the module docstring).
+
+    Parameters
+    ----------
+    reader : FrameReader
+    config : SourceConfig
+    """
+
+    def __init__(self, reader: FrameReader, config: SourceConfig) -> None:
+        self.reader = reader
+        self.config = config
+        self.queue = FrameQueue(config.queue_size, drop_oldest=reader.live)
+        self._stop = threading.Event()
+        self._lock = threading.Lock()
+        self._state = SourceState.CONNECTING
+        self._frames = 0
+        self._corrupt = 0
+        self._reconnects = 0
+        self._last_error: str | None = None
+        self._last_frame_mono: float | None = None
+        self._busy_since: float | None = None
+        self._next_index = 0
+        self._gave_up = False
+        self._crashed = False
+        self._opened = False
+        self._thread = threading.Thread(target=self._run, name="capture", daemon=True)
+        self._watchdog = threading.Thread(target=self._watch, name="capture-watchdog", daemon=True)
+
+    # ------------------------------------------------------------------------------ control
+    def open(self) -> None:
+        """Open a finite source now (``SourceOpenError`` if unreadable); live ones open on the thread."""
+        if not self.reader.live:
+            self.reader.open()
+            self._opened = True
+
+    def start(self) -> None:
+        """Start the capture thread (opening a finite source first if ``open`` was not called)."""
+        if not self.reader.live and not self._opened:
+            self.open()
+        self._thread.start()
+        if self.reader.live:
+            self._watchdog.start()
+
+    def stop(self, timeout_s: float = 1.0) -> None:
+        """Ask the thread to finish; returns after ``timeout_s`` even if a reader call still hangs."""
+        self._stop.set()
+        self.queue.wake()
+        if self._thread.is_alive():
+            self._thread.join(timeout_s)
+        if self._thread.is_alive():
+            log.warning("capture thread still inside a %s call; leaving it behind", self.reader.kind)
+        else:
+            self.reader.close()
+
+    def get(self, timeout_s: float) -> CapturedFrame | None:
+        """The next frame, or None after ``timeout_s`` (check ``finished``)."""
+        return self.queue.get(timeout_s)
+
+    # ------------------------------------------------------------------------------ state
+    @property
+    def state(self) -> SourceState:
+        return self._state
+
+    @property
+    def finished(self) -> bool:
+        """True once the source ended or failed and every queued frame was taken."""
+        return self._state in (SourceState.ENDED, SourceState.FAILED) and not len(self.queue)
+
+    @property
+    def gave_up(self) -> bool:
+        """True when a live source failed ``max_reconnects`` attempts in a row."""
+        return self._gave_up
+
+    @property
+    def crashed(self) -> bool:
+        """True when the capture thread died on an unexpected exception (a bug)."""
+        return self._crashed
+
+    @property
+    def last_error(self) -> str | None:
+        return self._last_error
+
+    def busy_for_s(self) -> float:
+        """Seconds spent inside the current reader call (0 when not inside one)."""
+        since = self._busy_since
+        return 0.0 if since is None else time.monotonic() - since
+
+    def stats(self) -> CaptureStats:
+        last = self._last_frame_mono
+        return CaptureStats(
+            state=self._state,
+            frames=self._frames,
+            dropped=self.queue.dropped,
+            corrupt=self._corrupt,
+            reconnects=self._reconnects,
+            last_error=self._last_error,
+            seconds_since_frame=None if last is None else time.monotonic() - last,
+        )
+
+    def _set_state(self, state: SourceState, detail: str = "") -> None:
+        with self._lock:
+            if state == self._state:
+                return
+            previous, self._state = self._state, state
+        message = f"source {self.reader.description}: {previous} -> {state}"
+        if detail:
+            message += f" ({detail})"
+        level = logging.WARNING if state in (SourceState.STALLED, SourceState.FAILED) else logging.INFO
+        log.log(level, message)
+
+    @contextlib.contextmanager
+    def _busy(self) -> Iterator[None]:
+        self._busy_since = time.monotonic()
+        try:
+            yield
+        finally:
+            self._busy_since = None
+
+    # ------------------------------------------------------------------------------ thread
+    def _run(self) -> None:
+        try:
+            if self.reader.live:
+                self._run_live()
+            else:
+                self._run_finite()
+        except SourceOpenError as exc:  # a looping file that vanished
+            self._last_error = str(exc)
+            self._gave_up = True
+            self._set_state(SourceState.FAILED, self._last_error)
+        except Exception as exc:  # a reader bug must end the daemon visibly, not hang it
+            log.exception("capture thread failed")
+            self._last_error = f"{type(exc).__name__}: {exc}"
+            self._crashed = True
+            self._set_state(SourceState.FAILED, self._last_error)
+        finally:
+            self.queue.wake()
+
+    def _accept(self, result: ReadResult, t_offset_ns: int = 0) -> CapturedFrame:
+        self._corrupt += result.corrupt
+        self._next_index += result.corrupt  # keep indices equal to the source's frame numbers
+        frame = Frame(self._next_index, result.t_ns + t_offset_ns, result.bgr)
+        self._next_index += 1
+        self._frames += 1
+        self._last_frame_mono = time.monotonic()
+        return CapturedFrame(frame, time.monotonic_ns())
+
+    def _run_finite(self) -> None:
+        self._set_state(SourceState.STREAMING)
+        interval_ns = round(1e9 / (self.reader.frame_rate or 30.0))
+        t_offset_ns = 0
+        restarted = False
+        last_t_ns: int | None = None
+        pace_origin: tuple[float, int] | None = None  # (monotonic s, frame t_ns) of the first frame
+        while not self._stop.is_set():
+            with self._busy():
+                result = self.reader.read()
+            if result.bgr is None:
+                self._corrupt += result.corrupt
+                if not self.config.loop:
+                    self._set_state(SourceState.ENDED, f"{self._frames} frames, {self._corrupt} corrupt")
+                    return
+                if self._frames == 0:
+                    raise SourceOpenError(f"{self.reader.description} gave no frame to loop over")
+                self.reader.close()
+                with self._busy():
+                    self.reader.open()
+                restarted = True
+                log.info("source %s: looping to its start", self.reader.description)
+                continue
+            if restarted and last_t_ns is not None:
+                t_offset_ns = last_t_ns + interval_ns - result.t_ns
+                restarted = False
+            t_ns = result.t_ns + t_offset_ns
+            if self.config.realtime:  # release the frame when a camera would have delivered it
+                if pace_origin is None:
+                    pace_origin = (time.monotonic(), t_ns)
+                delay = pace_origin[0] + (t_ns - pace_origin[1]) / 1e9 - time.monotonic()
+                if delay > 0 and self._stop.wait(delay):
+                    return
+            captured = self._accept(result, t_offset_ns)
+            last_t_ns = t_ns
+            if not self.queue.put(captured, self._stop):
+                return
+
+    def _run_live(self) -> None:
+        failures = 0
+        first = True
+        while not self._stop.is_set():
+            self._set_state(SourceState.CONNECTING if first else SourceState.RECONNECTING)
+            try:
+                with self._busy():
+                    self.reader.open()
+            except SourceOpenError as exc:
+                self._last_error = str(exc)
+                failures += 1
+                if not self._wait_before_retry(failures, str(exc)):
+                    return
+                continue
+            if not first:
+                self._reconnects += 1
+            first = False
+            self._last_frame_mono = time.monotonic()
+            self._set_state(SourceState.STREAMING)
+            frames_before = self._frames
+            reason = self._stream_live()
+            self.reader.close()
+            if self._stop.is_set():
+                return
+            self._last_error = reason
+            # A stream that opened but delivered nothing counts as a failed attempt (no hot loop).
+            failures = 0 if self._frames > frames_before else failures + 1
+            if not self._wait_before_retry(max(failures, 1), reason):
+                return
+
+    def _stream_live(self) -> str:
+        """Read until the stream is lost or the daemon stops; returns why it ended."""
+        while not self._stop.is_set():
+            with self._busy():
+                result = self.reader.read()
+            if result.bgr is None:
+                self._corrupt += result.corrupt
+                return "stream lost (timeout or disconnection)" if result.lost else "stream ended"
+            self.queue.put(self._accept(result), self._stop)
+            if self._state == SourceState.STALLED:
+                self._set_state(SourceState.STREAMING, "frames again")
+        return "stopping"
+
+    def _wait_before_retry(self, failures: int, reason: str) -> bool:
+        """Back off before the next attempt; False when giving up or stopping."""
+        limit = self.config.max_reconnects
+        if limit is not None and failures > limit:
+            self._gave_up = True
+            self._set_state(SourceState.FAILED, f"{reason}; gave up after {failures} attempts")
+            return False
+        self._set_state(SourceState.RECONNECTING)
+        delay = min(self.config.reconnect_initial_s * 2 ** (failures - 1), self.config.reconnect_max_s)
+        log.warning("source %s: %s; retrying in %.1f s", self.reader.description, reason, delay)
+        return not self._stop.wait(delay)
+
+    def _watch(self) -> None:
+        """Live sources: mark the source stalled when no frame arrived for ``stall_timeout_s``."""
+        timeout = self.config.stall_timeout_s
+        period = min(0.5, timeout / 4)
+        while not self._stop.wait(period):
+            last = self._last_frame_mono
+            if self._state == SourceState.STREAMING and last is not None:
+                silent = time.monotonic() - last
+                if silent > timeout:
+                    self._last_error = f"no frame for {silent:.1f} s"
+                    self._set_state(SourceState.STALLED, self._last_error)

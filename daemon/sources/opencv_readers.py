@@ -1,0 +1,267 @@
+"""Readers built on ``cv2.VideoCapture``: video files, V4L2 devices and network streams.
+
+Files are decoded with OpenCV's FFmpeg backend (H.264/H.265 MP4 and MKV, MJPEG and MPEG-4 AVI, ...)
+and stamped with the stream's presentation time (``CAP_PROP_POS_MSEC``). Network streams (rtsp,
+http, tcp, udp) use the same backend with open and read timeouts, so a dead link returns control
+to the capture thread, which reconnects. V4L2 devices get the configured size, pixel format and
+rate and say so when the driver picks something else. Live frames are stamped with the Unix time
+at which they were read (DESIGN.md §4).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+from pathlib import Path
+from urllib.parse import urlsplit, urlunsplit
+
+import cv2
+import numpy as np
+
+from dronekey.camera import CameraModel
+from dronekey.daemon.config import NetworkSettings, V4l2Settings
+from dronekey.daemon.sources.base import FrameReader, ReadResult, SourceOpenError, valid_bgr
+from dronekey.daemon.sources.sidecar import sidecar_camera
+
+__all__ = ["NetworkStreamReader", "V4l2Reader", "VideoFileReader", "quiet_native_logs", "redact_url"]
+
+log = logging.getLogger(__name__)
+
+# A file read that fails this many times in a row is its end; fewer failures followed by a good
+# frame were undecodable frames, counted as corrupt (OpenCV returns False for each of them).
+_FILE_MAX_CONSECUTIVE_FAILURES = 50
+# A live stream that fails this many reads in a row is lost (one bad packet is a corrupt frame).
+_LIVE_MAX_CONSECUTIVE_FAILURES = 3
+
+
+def redact_url(url: str) -> str:
+    """``url`` without its user name and password, for logs and status messages."""
+    try:
+        parts = urlsplit(url)
+    except ValueError:
+        return "<unparsable URL>"
+    if parts.username is None and parts.password is None:
+        return url
+    host = parts.hostname or ""
+    if parts.port is not None:
+        host = f"{host}:{parts.port}"
+    return urlunsplit((parts.scheme, f"***@{host}", parts.path, parts.query, parts.fragment))
+
+
+class _CaptureReader(FrameReader):
+    """Shared ``cv2.VideoCapture`` handling."""
+
+    def __init__(self) -> None:
+        self._cap: cv2.VideoCapture | None = None
+        self._fps: float | None = None
+        self._size: tuple[int, int] | None = None
+
+    @property
+    def frame_rate(self) -> float | None:
+        return self._fps
+
+    @property
+    def resolution(self) -> tuple[int, int] | None:
+        return self._size
+
+    def _remember_format(self, cap: cv2.VideoCapture) -> None:
+        fps = cap.get(cv2.CAP_PROP_FPS)
+        self._fps = float(fps) if np.isfinite(fps) and 0 < fps < 1000 else None
+        w, h = int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))
+        if w > 0 and h > 0:
+            self._size = (w, h)
+
+    def close(self) -> None:
+        if self._cap is not None:
+            self._cap.release()
+            self._cap = None
+
+    def _read_live(self) -> ReadResult:
+        """A live read: a few failures in a row mean the stream is lost."""
+        assert self._cap is not None, "read() before open()"
+        for failures in range(_LIVE_MAX_CONSECUTIVE_FAILURES):
+            ok, img = self._cap.read()
+            if ok and valid_bgr(img):
+                return ReadResult(img, time.time_ns(), corrupt=failures)
+        return ReadResult(lost=True)
+
+
+class VideoFileReader(_CaptureReader):
+    """A recorded video file, read in order and stamped with its presentation timestamps."""
+
+    live = False
+    kind = "file"
+
+    def __init__(self, path: Path) -> None:
+        super().__init__()
+        self.path = Path(path)
+        self.description = str(self.path)
+        self._peeked: ReadResult | None = None
+        self._last_t_ns: int | None = None
+        self._warned_pts = False
+
+    def open(self) -> None:
+        self.close()
+        if not self.path.is_file():
+            raise SourceOpenError(f"video file not found: {self.path}")
+        cap = cv2.VideoCapture(str(self.path), cv2.CAP_FFMPEG)
+        if not cap.isOpened():
+            raise SourceOpenError(
+                f"cannot open {self.path} as a video: OpenCV's FFmpeg backend does not read it "
+                "(use H.264 MP4, MJPEG or MPEG-4 AVI, or an image folder)"
+            )
+        self._cap = cap
+        self._remember_format(cap)
+        self._last_t_ns = None
+        first = self._decode_next()
+        if first.bgr is None:
+            self.close()
+            raise SourceOpenError(f"{self.path} holds no decodable video frame")
+        self._size = (first.bgr.shape[1], first.bgr.shape[0])
+        self._peeked = first
+
+    def read(self) -> ReadResult:
+        if self._peeked is not None:
+            result, self._peeked = self._peeked, None
+            return result
+        return self._decode_next()
+
+    def _decode_next(self) -> ReadResult:
+        assert self._cap is not None, "read() before open()"
+        failures = 0
+        while failures < _FILE_MAX_CONSECUTIVE_FAILURES:
+            ok, img = self._cap.read()
+            if ok and valid_bgr(img):
+                return ReadResult(img, self._timestamp_ns(), corrupt=failures)
+            failures += 1
+        return ReadResult(ended=True)
+
+    def _timestamp_ns(self) -> int:
+        t_ns = round(self._cap.get(cv2.CAP_PROP_POS_MSEC) * 1e6)
+        if self._last_t_ns is not None and t_ns <= self._last_t_ns:
+            # No usable PTS (some containers): step by the nominal frame interval, and say so once.
+            if not self._warned_pts:
+                log.warning("%s: presentation timestamps do not increase; using the frame rate", self.path)
+                self._warned_pts = True
+            t_ns = self._last_t_ns + round(1e9 / (self._fps or 30.0))
+        self._last_t_ns = t_ns
+        return t_ns
+
+    def bundled_camera(self) -> tuple[CameraModel, str] | None:
+        return sidecar_camera(self.path)
+
+
+class NetworkStreamReader(_CaptureReader):
+    """An rtsp/http/tcp/udp stream through OpenCV's FFmpeg backend, with open and read timeouts."""
+
+    live = True
+    kind = "network"
+
+    def __init__(self, url: str, settings: NetworkSettings, read_timeout_s: float) -> None:
+        super().__init__()
+        self.url = url
+        self.description = redact_url(url)
+        self._settings = settings
+        self._read_timeout_ms = max(100, round(read_timeout_s * 1000))
+        if url.lower().startswith("rtsp"):
+            _set_rtsp_transport(settings.rtsp_transport)
+
+    def open(self) -> None:
+        self.close()
+        params = [
+            cv2.CAP_PROP_OPEN_TIMEOUT_MSEC,
+            round(self._settings.open_timeout_s * 1000),
+            cv2.CAP_PROP_READ_TIMEOUT_MSEC,
+            self._read_timeout_ms,
+        ]
+        cap = cv2.VideoCapture(self.url, cv2.CAP_FFMPEG, params)
+        if not cap.isOpened():
+            cap.release()
+            raise SourceOpenError(f"cannot open stream {self.description}")
+        self._cap = cap
+        self._remember_format(cap)
+
+    def read(self) -> ReadResult:
+        return self._read_live()
+
+
+class V4l2Reader(_CaptureReader):
+    """A V4L2 camera (``/dev/videoN`` or a stable ``/dev/v4l/by-id/...`` link)."""
+
+    live = True
+    kind = "v4l2"
+
+    def __init__(self, device: str, settings: V4l2Settings) -> None:
+        super().__init__()
+        self.device = device
+        self.description = device
+        self._settings = settings
+
+    def open(self) -> None:
+        self.close()
+        if not os.path.exists(self.device):
+            raise SourceOpenError(f"{self.device} does not exist (camera unplugged?)")
+        if not os.access(self.device, os.R_OK | os.W_OK):
+            raise SourceOpenError(
+                f"no permission to open {self.device}: run as a member of the 'video' group"
+            )
+        s = self._settings
+        params: list[int] = []
+        if s.fourcc:
+            params += [cv2.CAP_PROP_FOURCC, cv2.VideoWriter_fourcc(*s.fourcc)]
+        if s.width:
+            params += [cv2.CAP_PROP_FRAME_WIDTH, s.width]
+        if s.height:
+            params += [cv2.CAP_PROP_FRAME_HEIGHT, s.height]
+        if s.fps:
+            params += [cv2.CAP_PROP_FPS, round(s.fps)]
+        cap = cv2.VideoCapture(self.device, cv2.CAP_V4L2, params)
+        if not cap.isOpened():
+            cap.release()
+            raise SourceOpenError(f"cannot open V4L2 device {self.device}")
+        self._cap = cap
+        self._remember_format(cap)
+        self._report_format(cap)
+
+    def _report_format(self, cap: cv2.VideoCapture) -> None:
+        s = self._settings
+        code = int(cap.get(cv2.CAP_PROP_FOURCC))
+        fourcc = "".join(chr((code >> (8 * i)) & 0xFF) for i in range(4)) if code > 0 else "?"
+        w, h = self._size or (0, 0)
+        got = f"{w}x{h} {fourcc} {self._fps or 0:g} fps"
+        wanted = (s.width, s.height, s.fourcc, s.fps)
+        mismatch = (
+            (s.width and s.width != w)
+            or (s.height and s.height != h)
+            or (s.fourcc and s.fourcc != fourcc)
+            or (s.fps and self._fps and abs(s.fps - self._fps) > 0.5)
+        )
+        if mismatch:
+            log.warning("%s: asked for %s, the device gives %s", self.device, wanted, got)
+        else:
+            log.info("%s: %s", self.device, got)
+
+    def read(self) -> ReadResult:
+        return self._read_live()
+
+
+def _set_rtsp_transport(transport: str) -> None:
+    """Tell OpenCV's FFmpeg backend the RTSP transport, unless the user set capture options already."""
+    key = "OPENCV_FFMPEG_CAPTURE_OPTIONS"
+    if key in os.environ:
+        log.info("%s is set (%r); source.network.rtsp_transport not applied", key, os.environ[key])
+        return
+    os.environ[key] = f"rtsp_transport;{transport}"
+
+
+def quiet_native_logs(verbose: bool) -> None:
+    """Keep FFmpeg's and OpenCV's own stderr messages out of the log unless debugging.
+
+    They bypass Python logging (and would break the terminal status line and journald priorities);
+    what they report (undecodable frames, timeouts) is counted and logged by the capture thread.
+    A user's own ``OPENCV_FFMPEG_LOGLEVEL`` is left as it is.
+    """
+    os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "24" if verbose else "-8")  # AV_LOG_WARNING / QUIET
+    level = cv2.utils.logging.LOG_LEVEL_INFO if verbose else cv2.utils.logging.LOG_LEVEL_ERROR
+    cv2.utils.logging.setLogLevel(level)

@@ -1,0 +1,73 @@
+"""``sim://<preset>``: a simulator sequence rendered on the fly (``sim_replay.presets``)."""
+
+from __future__ import annotations
+
+import logging
+
+from dronekey.camera import CameraModel
+from dronekey.daemon.config import SimSettings
+from dronekey.daemon.sources.base import FrameReader, ReadResult, SourceOpenError, valid_bgr
+
+__all__ = ["SimReader"]
+
+log = logging.getLogger(__name__)
+
+
+class SimReader(FrameReader):
+    """Renders the preset's frames in order; its camera is the preset's camera."""
+
+    live = False
+    kind = "sim"
+
+    def __init__(self, preset: str, settings: SimSettings) -> None:
+        self.preset = preset
+        self.description = f"sim://{preset}"
+        self._settings = settings
+        self._sequence = None
+        self._frames = None
+
+    def _build(self):
+        try:
+            from dronekey.sim_replay.presets import build_sequence
+        except ImportError as exc:
+            raise SourceOpenError(f"sim:// sources need dronekey.sim_replay.presets: {exc}") from None
+        try:
+            return build_sequence(self.preset, seed=self._settings.seed, frames=self._settings.frames)
+        except (KeyError, ValueError) as exc:
+            message = exc.args[0] if exc.args else str(exc)
+            raise SourceOpenError(f"sim://{self.preset}: {message}") from None
+
+    def open(self) -> None:
+        if self._sequence is None:
+            self._sequence = self._build()
+        self._frames = iter(self._sequence)
+
+    @property
+    def frame_rate(self) -> float | None:
+        fps = getattr(self._sequence, "fps", None)
+        return float(fps) if fps else None
+
+    @property
+    def resolution(self) -> tuple[int, int] | None:
+        if self._sequence is None:
+            return None
+        camera = self._sequence.camera
+        return camera.width, camera.height
+
+    def read(self) -> ReadResult:
+        if self._frames is None:
+            raise RuntimeError("read() before open()")
+        corrupt = 0
+        for rendered in self._frames:
+            if valid_bgr(rendered.image):
+                return ReadResult(rendered.image, int(rendered.record.t_ns), corrupt=corrupt)
+            corrupt += 1
+        return ReadResult(corrupt=corrupt, ended=True)
+
+    def close(self) -> None:
+        self._frames = None
+
+    def bundled_camera(self) -> tuple[CameraModel, str] | None:
+        if self._sequence is None:
+            self._sequence = self._build()
+        return self._sequence.camera, f"the camera of the sim://{self.preset} preset"
