@@ -22,7 +22,7 @@ import time
 import numpy as np
 
 from dronekey.daemon.geo import CameraGeo
-from dronekey.rotations import matrix_to_quat_wxyz, quat_wxyz_to_matrix
+from dronekey.rotations import matrix_to_quat_wxyz, ned_from_camera, quat_wxyz_to_matrix
 from dronekey.types import Track
 
 from .target_state import TargetGeodetic, callsign, icao_address
@@ -39,8 +39,9 @@ __all__ = [
     "unix_time_us",
 ]
 
-# Camera frame (x right, y down, z forward) -> sensor body FRD (x forward, y right, z down).
-FRD_FROM_CAM = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+# Camera frame (x right, y down, z forward) -> sensor body FRD (x forward, y right, z down): the
+# mount's FRD frame is the NED frame of a level, north-looking mount (one definition, in rotations).
+FRD_FROM_CAM = ned_from_camera(0.0, 0.0, 0.0)
 
 _NO_QUATERNION = (0.0, 0.0, 0.0, 0.0)
 _UNKNOWN3 = (math.nan, math.nan, math.nan)

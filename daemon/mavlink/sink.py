@@ -68,6 +68,7 @@ _RETRY_MIN_S, _RETRY_MAX_S = 1.0, 30.0
 _TRACK_STALE_S = 5.0
 _REFUSAL_LOG_PERIOD_S = 60.0
 _MSG_TARGET_ABSOLUTE, _MSG_TARGET_RELATIVE, _MSG_ADSB_VEHICLE = 510, 511, 246
+_STREAM_NAMES = {510: "TARGET_ABSOLUTE", 511: "TARGET_RELATIVE", 246: "ADSB_VEHICLE"}
 
 
 def _package_version() -> str:
@@ -261,7 +262,9 @@ class MavlinkSink(Sink):
                 "last_send_error": self._last_send_error,
                 "refused_unsigned": self._refused,
                 "commands": self._commands,
-                "intervals_us": {m: self._rates.interval_us(m) for m in self._rates.message_ids},
+                "intervals_us": {
+                    _STREAM_NAMES[m]: self._rates.interval_us(m) for m in self._rates.message_ids
+                },
             }
 
     def close(self) -> None:
