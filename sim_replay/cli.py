@@ -35,7 +35,6 @@ from dronekey.sim_replay.sequence_io import (
 __all__ = ["main"]
 
 PROG = "dronekey-sim"
-IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp")
 EXIT_WRITE_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 1, 2, 130
 
 log = logging.getLogger(__name__)
@@ -163,13 +162,6 @@ def _check_output_folder(out: Path) -> None:
         raise UsageError(f"output folder {out} is not writable ({exc.strerror or exc})") from None
 
 
-def _check_backgrounds(folder: Path) -> None:
-    if not folder.is_dir():
-        raise UsageError(f"backgrounds folder not found: {folder}")
-    if not any(p.suffix.lower() in IMAGE_SUFFIXES for p in folder.rglob("*") if p.is_file()):
-        raise UsageError(f"backgrounds folder {folder} holds no images ({', '.join(IMAGE_SUFFIXES)})")
-
-
 def _size(args: argparse.Namespace) -> tuple[int, int]:
     if (args.width is None) != (args.height is None):
         given = "--width" if args.width is not None else "--height"
@@ -197,9 +189,6 @@ def _render(args: argparse.Namespace) -> int:
     if args.out is None:
         raise UsageError("--out DIR is required with --preset")
     width, height = _size(args)
-    if args.backgrounds is not None:
-        _check_backgrounds(args.backgrounds)
-    _check_output_folder(args.out)
     try:
         seq = build_sequence(
             args.preset,
@@ -209,8 +198,9 @@ def _render(args: argparse.Namespace) -> int:
             height=height,
             backgrounds=args.backgrounds,
         )
-    except (ValueError, OSError) as exc:  # the presets' own argument checks
+    except (ValueError, OSError) as exc:  # the presets' own checks: sizes, frames, backgrounds folder
         raise UsageError(str(exc)) from None
+    _check_output_folder(args.out)
     with tqdm(total=seq.n_frames, unit="frame", desc=seq.name, disable=None, leave=False) as bar:
         try:
             written = write_sequence(seq, args.out, images=args.images, on_frame=bar.update)

@@ -581,19 +581,15 @@ def _decode_rotation(values: np.ndarray, encoding: str) -> np.ndarray | None:
 
 
 def _candidate_decodings(raw: _RawPose, encoding: CocoPoseEncoding) -> list[_Decoding]:
+    """Every decoding allowed by ``encoding`` that fits the size of the raw rotation."""
     rotations = ROTATION_ENCODINGS if encoding.rotation == "auto" else (encoding.rotation,)
     units = tuple(TRANSLATION_UNITS) if encoding.translation_unit == "auto" else (encoding.translation_unit,)
     orders: tuple[str | None, ...] = (None,)
     if raw.pose6 is not None:
         orders = ("rt", "tr") if encoding.pose6_order == "auto" else (encoding.pose6_order,)
-    out = []
-    for order in orders:
-        for rot in rotations:
-            probe = raw.pose6[:3] if raw.pose6 is not None else raw.rotation
-            if _decode_rotation(probe, rot) is None and encoding.rotation == "auto":
-                continue
-            out += [_Decoding(rot, unit, order) for unit in units]
-    return out
+    probe = raw.pose6[:3] if raw.pose6 is not None else raw.rotation
+    fitting = [rot for rot in rotations if _decode_rotation(probe, rot) is not None]
+    return [_Decoding(rot, unit, order) for order in orders for rot in fitting for unit in units]
 
 
 def _reprojection_px(
@@ -618,7 +614,8 @@ def _choose_decoding(
     first_where, first_raw = samples[0][0], samples[0][1]
     candidates = _candidate_decodings(first_raw, encoding)
     if not candidates:
-        check.fail(first_where, f"the rotation cannot be read as {encoding.rotation}")
+        size = first_raw.rotation.size if first_raw.rotation is not None else 3
+        check.fail(first_where, f"a rotation of {size} numbers cannot be read as {encoding.rotation}")
     scored = []
     for dec in candidates:
         errors = []
@@ -629,7 +626,11 @@ def _choose_decoding(
     best_err, best = min(scored, key=lambda s: s[0])
     spread = float(np.median([np.ptp(kp[flags > 0], axis=0).max() for _, _, kp, flags in samples]))
     tolerance = max(3.0, 0.05 * spread)
-    explicit = len(candidates) == 1
+    explicit = (
+        encoding.rotation != "auto"
+        and encoding.translation_unit != "auto"
+        and (first_raw.pose6 is None or encoding.pose6_order != "auto")
+    )
     if best_err <= tolerance or explicit:
         log_fn = log.warning if best_err > tolerance else log.info
         log_fn("%s: pose encoding %s reprojects with a median error of %.3g px", check.path, best, best_err)

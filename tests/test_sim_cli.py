@@ -218,7 +218,7 @@ def _bad_inputs(tmp: Path) -> list[tuple[list[str], str]]:
             f"output folder {tmp / 'a_file'} is an existing file",
         ),
         ([*render_, "--backgrounds", str(tmp / "nope")], f"backgrounds folder not found: {tmp / 'nope'}"),
-        ([*render_, "--backgrounds", str(tmp / "no_images")], "holds no images"),
+        ([*render_, "--backgrounds", str(tmp / "no_images")], "no images (.jpg"),
         (["--preset", "seq13"], "--out DIR is required with --preset"),
         (["--verify", str(tmp / "broken.json")], "broken.json: line 1 column 13: invalid JSON"),
         (["--verify", str(tmp / "no_info.json")], "no_info.json: top level: missing key 'info'"),

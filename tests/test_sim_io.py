@@ -419,6 +419,8 @@ def test_real_coco_with_unmatched_keypoint_order_is_refused(tmp_path):
     # Naming the encoding takes it as given (a warning reports the residual).
     seq = load_sequence(path, pose_encoding=CocoPoseEncoding(rotation="euler_ZYX_deg", translation_unit="mm"))
     assert seq.annotated()[0].drone.has_pose
+    with pytest.raises(SequenceFormatError, match=r"a rotation of 3 numbers cannot be read as matrix"):
+        load_sequence(path, pose_encoding=CocoPoseEncoding(rotation="matrix"))
 
 
 def test_2dronekey_keypoints_only_file(tmp_path):
