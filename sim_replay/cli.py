@@ -24,6 +24,7 @@ from tqdm import tqdm
 from dronekey.camera import CalibrationError
 from dronekey.drone_spec import DroneSpecError
 from dronekey.sim_replay.frames import FrameSourceError, iter_frames
+from dronekey.sim_replay.presets import PRESETS, build_sequence
 from dronekey.sim_replay.sequence_io import (
     ROTATION_ENCODINGS,
     TRANSLATION_UNITS,
@@ -31,6 +32,7 @@ from dronekey.sim_replay.sequence_io import (
     SequenceFormatError,
     load_sequence,
 )
+from dronekey.sim_replay.writer import write_sequence
 
 __all__ = ["main"]
 
@@ -173,17 +175,12 @@ def _size(args: argparse.Namespace) -> tuple[int, int]:
 
 
 def _list_presets() -> int:
-    from dronekey.sim_replay.presets import PRESETS
-
     for preset in PRESETS.values():
         print(f"{preset.name:10s} {preset.frames:5d} frames at {preset.fps:g} fps  {preset.description}")
     return 0
 
 
 def _render(args: argparse.Namespace) -> int:
-    from dronekey.sim_replay.presets import PRESETS, build_sequence
-    from dronekey.sim_replay.writer import write_sequence
-
     if args.preset not in PRESETS:
         raise UsageError(f"unknown preset {args.preset!r}; valid presets: {', '.join(PRESETS)}")
     if args.out is None:
