@@ -221,10 +221,11 @@ class MavlinkSink(Sink):
     def is_healthy(self) -> bool:
         """Whether a heartbeat would go out now."""
         with self._state_lock:
-            alive = self._last_alive_ns
-            return (
-                self._healthy and alive is not None and time.monotonic_ns() - alive <= self._health_timeout_ns
-            )
+            return self._is_healthy_locked()
+
+    def _is_healthy_locked(self) -> bool:
+        alive = self._last_alive_ns
+        return self._healthy and alive is not None and time.monotonic_ns() - alive <= self._health_timeout_ns
 
     def handle_status(self, status: dict) -> None:
         """Take ``status["healthy"]`` (bool) if the daemon's status carries it."""
@@ -255,7 +256,7 @@ class MavlinkSink(Sink):
                 "url": self._url,
                 "link_open": self._conn is not None,
                 "last_link_error": self._last_link_error,
-                "heartbeat": self._healthy and self._last_alive_ns is not None,
+                "heartbeat": self._is_healthy_locked(),
                 "signing": self._key is not None,
                 "sent": dict(self._sent),
                 "send_errors": self._send_errors,
