@@ -52,6 +52,8 @@ class PoseMeasurement:
     covariance : (6, 6) measurement covariance of [t (m), rotation vector (rad)] in the camera frame.
     alternative : the other IPPE solution as (R, t, reprojection_px), or None.
     method : "ippe" or "paper".
+    keypoint_sigma_px : keypoint noise (px, per coordinate) that ``covariance`` assumes; lets the
+        tracker turn the two solutions' reprojection errors into a likelihood ratio. NaN if unknown.
     """
 
     R: np.ndarray
@@ -60,6 +62,7 @@ class PoseMeasurement:
     covariance: np.ndarray
     alternative: tuple[np.ndarray, np.ndarray, float] | None = None
     method: str = "ippe"
+    keypoint_sigma_px: float = float("nan")
 
 
 class TrackStatus(StrEnum):
