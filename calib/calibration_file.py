@@ -38,6 +38,7 @@ def write_calibration(path: Path, result: CalibrationResult, pattern: BoardPatte
     fs = cv2.FileStorage(str(tmp), cv2.FILE_STORAGE_WRITE)
     if not fs.isOpened():
         raise CalibInputError(f"cannot write {path}: the folder is not writable")
+    written = False
     try:
         camera = result.camera
         fs.write("calibration_time", datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ"))
@@ -62,9 +63,13 @@ def write_calibration(path: Path, result: CalibrationResult, pattern: BoardPatte
         for name in result.view_names:
             fs.write("", str(name))
         fs.endWriteStruct()
+        fs.release()
+        tmp.replace(path)
+        written = True
     finally:
         fs.release()
-    tmp.replace(path)
+        if not written:
+            tmp.unlink(missing_ok=True)
 
 
 def load_calibration(path: Path) -> tuple[CameraModel, bool]:

@@ -78,7 +78,8 @@ def collect_from_images(pattern_glob: str, detector: BoardDetector, progress: bo
         names.append(path.name)
     noun = "image" if len(files) == 1 else "images"
     if not views:
-        raise CalibInputError(explain_no_board(detector.pattern, samples, f"any of the {len(files)} {noun}"))
+        where = "the one image" if len(files) == 1 else f"any of the {len(files)} images"
+        raise CalibInputError(explain_no_board(detector.pattern, samples, where))
     return Collection(views, names, size, rejected, f"board found in {len(views)} of {len(files)} {noun}")
 
 

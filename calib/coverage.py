@@ -128,5 +128,9 @@ def write_png(path: Path, image: np.ndarray) -> None:
     if not ok:
         raise RuntimeError(f"PNG encoding failed for {path}")
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_bytes(data.tobytes())
-    tmp.replace(path)
+    try:
+        tmp.write_bytes(data.tobytes())
+        tmp.replace(path)
+    except OSError:
+        tmp.unlink(missing_ok=True)
+        raise

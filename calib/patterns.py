@@ -47,12 +47,18 @@ _SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 50, 1e-3)
 
 
 def aruco_dictionary_names() -> list[str]:
-    """Names of OpenCV's predefined ArUco dictionaries (``DICT_4X4_50`` ...)."""
-    return sorted(
+    """OpenCV's predefined ArUco dictionary names, smallest first in each family (``DICT_4X4_50``...)."""
+    names = [
         name
         for name in dir(cv2.aruco)
         if name.startswith("DICT_") and name == name.upper() and isinstance(getattr(cv2.aruco, name), int)
-    )
+    ]
+
+    def family_then_size(name: str) -> tuple[str, int]:
+        family, _, size = name.rpartition("_")
+        return (family, int(size)) if size.isdigit() else (name, 0)
+
+    return sorted(names, key=family_then_size)
 
 
 def _dictionary_id(name: str) -> int:
