@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -28,7 +29,8 @@ class Collection:
     Attributes
     ----------
     views, names : lists
-        One ``BoardView`` and its picture's name (file name, or ``video#frame``) per usable view.
+        One ``BoardView`` and its picture's name per usable view: the file's path relative to the
+        folder all matched files share (its name for a flat folder), or ``video#frame``.
     image_size : (int, int)
         (width, height) of the pictures, pixels.
     rejected : list of RejectedView
@@ -64,18 +66,20 @@ def collect_from_images(pattern_glob: str, detector: BoardDetector, progress: bo
     """
     files = expand_image_glob(pattern_glob)
     views, names, rejected, samples = [], [], [], []
-    size, first = None, files[0].name
+    base = Path(os.path.commonpath([str(p.parent) for p in files]))
+    label = {p: p.relative_to(base).as_posix() for p in files}  # unique even when ** recursed
+    size, first = None, label[files[0]]
     for path in tqdm(files, desc="finding the board", unit="image", disable=None if progress else True):
         gray = read_gray(path)
-        size = _check_size(size, gray, path.name, first)
+        size = _check_size(size, gray, label[path], first)
         view = detector.detect(gray)
         if view is None:
-            rejected.append(RejectedView(path.name, "no board found"))
+            rejected.append(RejectedView(label[path], "no board found"))
             if len(samples) < _DIAGNOSIS_SAMPLES:
                 samples.append(gray)
             continue
         views.append(view)
-        names.append(path.name)
+        names.append(label[path])
     noun = "image" if len(files) == 1 else "images"
     if not views:
         where = "the one image" if len(files) == 1 else f"any of the {len(files)} images"
