@@ -86,7 +86,9 @@ class SourceConfig(_Section):
     realtime: bool = Field(False, description="pace files, image folders and sim at their frame rate")
     loop: bool = Field(False, description="restart a file, image folder or sim at its end")
     queue_size: int = Field(2, ge=1, le=256, description="frames buffered from live sources (drop oldest)")
-    stall_timeout_s: Seconds = Field(5.0, description="live source with no frame for this long is stalled")
+    stall_timeout_s: Seconds = Field(
+        5.0, description="live source with no frame for this long is stalled; reconnected after twice that"
+    )
     reconnect_initial_s: Seconds = Field(0.5, description="first reconnection delay (doubles each try)")
     reconnect_max_s: Seconds = Field(30.0, description="longest reconnection delay")
     max_reconnects: int | None = Field(
@@ -333,8 +335,8 @@ def _resolve_relative_paths(data: dict, base: Path) -> None:
         if not isinstance(node, dict) or not isinstance(node.get(leaf), str):
             continue
         value = node[leaf]
-        if "://" in value or Path(value).is_absolute() or not value.strip():
-            continue
+        if "://" in value or Path(value).is_absolute() or not value.strip() or value.isdigit():
+            continue  # URLs, absolute paths and V4L2 device numbers stay as they are
         node[leaf] = str(base / value)
 
 

@@ -44,18 +44,19 @@ class OutputContext:
 
 
 def _zenoh(config: DaemonConfig, ctx: OutputContext) -> Sink:
+    from dronekey.daemon.messages import info_message
     from dronekey.daemon.sinks.zenoh_sink import ZenohSink
 
     z = config.zenoh
+    geo = config.camera.camera_geo()
     return ZenohSink(
-        camera_id=config.camera.id,
-        camera=ctx.camera,
-        model_info=ctx.model_info,
-        camera_geo=config.camera.camera_geo(),
+        config.camera.id,
         mode=z.mode,
         connect=list(z.connect),
         listen=list(z.listen),
         scouting=z.scouting,
+        info=info_message(config.camera.id, ctx.camera, ctx.model_info, geo),
+        camera_geo=geo,
     )
 
 

@@ -63,7 +63,9 @@ def make_reader(config: SourceConfig) -> FrameReader:
     if scheme in NETWORK_SCHEMES:
         from dronekey.daemon.sources.opencv_readers import NetworkStreamReader
 
-        return NetworkStreamReader(uri, config.network, read_timeout_s=config.stall_timeout_s)
+        # The watchdog reports the stall after stall_timeout_s; the read gives up (and the capture
+        # reconnects) after twice that.
+        return NetworkStreamReader(uri, config.network, read_timeout_s=2 * config.stall_timeout_s)
     if scheme == "file":
         uri = uri[len("file://") :]
     elif scheme:
