@@ -1,0 +1,192 @@
+"""Where in a full frame the keypoint network should look.
+
+A 1080p frame is far larger than the network's 128 px input and a drone may be 30 or 600 px wide,
+or absent. Two modes:
+
+- **Acquisition** (no live track, or the tracking crop failed): a cheap saliency pass on a
+  downscaled frame (local contrast against a blurred background, plus frame-to-frame change for a
+  static camera) proposes a few blobs; the network checks them all in one batch, the best presence
+  score wins if it passes the threshold, and a second crop framed on the predicted keypoints
+  (exactly as in training, ``dronekey.crop.CropPolicy``) refines them.
+- **Tracking**: one crop around the box of the track's predicted pose (propeller discs projected
+  through the camera), one inference per frame.
+
+Both return ``KeypointDetection`` objects in full-frame pixels, or None for "no drone".
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from dronekey.camera import CameraModel
+from dronekey.crop import CropPolicy, roi_around_box
+from dronekey.drone_spec import DroneSpec
+from dronekey.runtime import KeypointModel
+from dronekey.types import KeypointDetection
+
+__all__ = ["Localizer", "LocalizerConfig", "box_from_keypoints", "box_from_pose"]
+
+log = logging.getLogger(__name__)
+
+Box = tuple[float, float, float, float]
+
+
+@dataclass(frozen=True)
+class LocalizerConfig:
+    """Acquisition settings.
+
+    presence_threshold : presence probability above which a crop holds a drone.
+    work_width : width (px) of the downscaled frame the saliency pass runs on.
+    max_candidates : blobs checked by the network per acquisition (one batch).
+    candidate_scale : crop side over the blob's longer side (blobs often miss faint propellers).
+    min_contrast : smallest local contrast (8-bit levels) a blob must reach.
+    background_sigma : blur (work-image px) that estimates the local background.
+    use_motion : also propose blobs that changed since the previous frame (static cameras).
+    """
+
+    presence_threshold: float = 0.5
+    work_width: int = 480
+    max_candidates: int = 6
+    candidate_scale: float = 1.8
+    min_contrast: float = 12.0
+    background_sigma: float = 6.0
+    use_motion: bool = True
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.presence_threshold < 1.0:
+            raise ValueError(f"presence_threshold must be in (0, 1), got {self.presence_threshold}")
+        if self.work_width < 64:
+            raise ValueError(f"work_width must be >= 64, got {self.work_width}")
+        if self.max_candidates < 1:
+            raise ValueError(f"max_candidates must be >= 1, got {self.max_candidates}")
+
+
+def box_from_keypoints(keypoints_px: np.ndarray, spec: DroneSpec) -> Box:
+    """Approximate box of the whole drone from its four hubs: the hubs' box grown by a propeller
+    radius scaled like the hubs' apparent spread."""
+    kp = np.asarray(keypoints_px, dtype=np.float64)
+    spread = max(np.linalg.norm(kp[i] - kp[j]) for i in range(4) for j in range(i + 1, 4))
+    margin = 0.5 * spec.prop_diameter_m / spec.diagonal_m * spread + 1.0
+    lo, hi = kp.min(axis=0) - margin, kp.max(axis=0) + margin
+    return float(lo[0]), float(lo[1]), float(hi[0] - lo[0]), float(hi[1] - lo[1])
+
+
+def _extent_points(spec: DroneSpec) -> np.ndarray:
+    """Points on each propeller disc's rim plus a point under the body (body frame, m)."""
+    r = spec.prop_diameter_m / 2
+    ang = np.linspace(0, 2 * np.pi, 8, endpoint=False)
+    rim = np.c_[r * np.cos(ang), r * np.sin(ang), np.zeros(8)]
+    pts = [hub + rim for hub in spec.keypoints_3d]
+    pts.append(np.array([[0.0, 0.0, float(spec.body.get("height", 0.05)) * 1.5]]))
+    return np.vstack(pts)
+
+
+def box_from_pose(camera: CameraModel, spec: DroneSpec, R: np.ndarray, t: np.ndarray) -> Box | None:
+    """Box of the drone at pose (R, t) in full-frame pixels, or None if it is behind the camera."""
+    pts = _extent_points(spec) @ np.asarray(R).T + np.asarray(t).reshape(3)
+    if pts[:, 2].min() <= 0.05:
+        return None
+    uv = camera.project(pts)
+    lo, hi = uv.min(axis=0), uv.max(axis=0)
+    return float(lo[0]), float(lo[1]), float(hi[0] - lo[0]), float(hi[1] - lo[1])
+
+
+class Localizer:
+    """Finds the drone in full frames and runs the keypoint model on the right crops.
+
+    Parameters
+    ----------
+    model : KeypointModel
+    spec : DroneSpec
+        The drone model (for the box around predicted keypoints).
+    crop : CropPolicy
+        The framing the network was trained on (``input_size`` must match the model).
+    config : LocalizerConfig
+    """
+
+    def __init__(
+        self, model: KeypointModel, spec: DroneSpec, crop: CropPolicy, config: LocalizerConfig | None = None
+    ) -> None:
+        if crop.input_size != model.input_size:
+            raise ValueError(f"crop.input_size {crop.input_size} differs from the model's {model.input_size}")
+        self.model = model
+        self.spec = spec
+        self.crop = crop
+        self.config = config or LocalizerConfig()
+        self._prev_small: np.ndarray | None = None
+
+    # ------------------------------------------------------------------ tracking mode
+    def detect_in_box(self, frame_bgr: np.ndarray, box: Box) -> KeypointDetection:
+        """Run the network on the training framing of ``box`` (no jitter)."""
+        return self.model.detect(frame_bgr, [self.crop.roi(box)])[0]
+
+    def refine(self, frame_bgr: np.ndarray, detection: KeypointDetection) -> KeypointDetection:
+        """Re-crop on the box implied by a detection's keypoints and run the network again."""
+        return self.detect_in_box(frame_bgr, box_from_keypoints(detection.keypoints_px, self.spec))
+
+    # ------------------------------------------------------------------ acquisition
+    def acquire(self, frame_bgr: np.ndarray) -> KeypointDetection | None:
+        """Search the whole frame; the best refined detection above the presence threshold, or None."""
+        rois = self.candidate_rois(frame_bgr)
+        if not rois:
+            return None
+        detections = self.model.detect(frame_bgr, rois)
+        best = max(detections, key=lambda d: d.presence)
+        if best.presence < self.config.presence_threshold:
+            return None
+        refined = self.refine(frame_bgr, best)
+        return refined if refined.presence >= self.config.presence_threshold else best
+
+    def candidate_rois(self, frame_bgr: np.ndarray) -> list[tuple[int, int, int]]:
+        """Square crops around the most salient blobs of the frame, best first."""
+        h, w = frame_bgr.shape[:2]
+        cfg = self.config
+        scale = min(1.0, cfg.work_width / w)
+        small = cv2.resize(frame_bgr, (round(w * scale), round(h * scale)), interpolation=cv2.INTER_AREA)
+        small = small.astype(np.float32)
+        background = cv2.GaussianBlur(small, (0, 0), cfg.background_sigma)
+        contrast = np.abs(small - background).max(axis=2)
+        maps = [contrast]
+        if cfg.use_motion and self._prev_small is not None and self._prev_small.shape == small.shape:
+            maps.append(np.abs(small - self._prev_small).max(axis=2))
+        self._prev_small = small
+        blobs: list[tuple[float, Box]] = []
+        for m in maps:
+            blobs.extend(_blobs(m, cfg.min_contrast))
+        blobs.sort(key=lambda b: -b[0])
+        rois, centres = [], []
+        for _, (bx, by, bw, bh) in blobs:
+            # Blob centre in edge coordinates of the small map -> full-frame pixel-centre coordinates.
+            cx, cy = (bx + bw / 2) / scale - 0.5, (by + bh / 2) / scale - 0.5
+            size = max(bw, bh) / scale
+            if any(abs(cx - x) < s / 2 and abs(cy - y) < s / 2 for x, y, s in centres):
+                continue  # the same object seen by both maps
+            side = max(cfg.candidate_scale * size, float(self.crop.min_side))
+            rois.append(roi_around_box(cx, cy, side))
+            centres.append((cx, cy, side))
+            if len(rois) >= cfg.max_candidates:
+                break
+        return rois
+
+
+def _blobs(saliency: np.ndarray, min_contrast: float) -> list[tuple[float, Box]]:
+    """Connected regions of high saliency as (score, box in the map's pixels)."""
+    med = float(np.median(saliency))
+    mad = float(np.median(np.abs(saliency - med))) + 1e-3
+    thr = max(min_contrast, med + 8.0 * 1.4826 * mad)
+    mask = (saliency > thr).astype(np.uint8)
+    mask = cv2.dilate(mask, np.ones((3, 3), np.uint8), iterations=2)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    out = []
+    for i in range(1, n):
+        x, y, bw, bh, area = stats[i]
+        if area < 4:
+            continue
+        region = saliency[y : y + bh, x : x + bw][labels[y : y + bh, x : x + bw] == i]
+        score = float(region.max()) * np.sqrt(float(area))
+        out.append((score, (float(x), float(y), float(bw), float(bh))))
+    return out

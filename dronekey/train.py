@@ -1,0 +1,517 @@
+"""``dronekey-train``: train the DroneKey network on rendered crops or on a COCO keypoint folder.
+
+Recipes (``--preset``):
+
+- ``edge`` (default): the shipped model. The edge network (``DroneKeyConfig.edge()``) on 128 px
+  crops streamed from ``sim_replay.sampler`` (fresh renders every step, no files), AdamW with a
+  warm-up and cosine decay, the pose-adaptive Mahalanobis loss with the paper's exponential scale
+  schedule (alpha 5, D 10). Sized to finish on two CPU cores in about two hours.
+- ``paper``: the paper's settings: ResNet-50, d 1024, N 6, 8 heads, feed-forward 2048, 224 px,
+  Adam, learning rate 1e-5, batch 8, 100 epochs, alpha 5, D 10 (a GPU job).
+- ``tiny``: a minute-long smoke run for tests.
+
+Schedule time. The paper's S(t) = D exp(-0.01 alpha t) runs over t = 0..100 epochs. A recipe with
+another number of epochs follows the same curve over its whole run: the loss is evaluated at
+``t = 100 * progress`` (progress = step / total steps), so S goes from 10 to 0.067 in every recipe.
+
+Each epoch ends with a validation on a fixed set of rendered crops (or the COCO folder's
+validation split): SR90, SR95, AP^kp (presence probability as the score), presence AUC, median
+keypoint error and the front/back swap rate; the best checkpoint by AP is kept, training stops
+early after ``--patience`` epochs without improvement, ``--resume`` continues the last run, and
+plots of the loss and S(t) per epoch (paper Fig. 5) and of the gate weights per layer (Fig. 8)
+are rewritten each epoch.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import math
+import sys
+import time
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from dronekey.crop import CropPolicy
+from dronekey.runtime import IMAGENET_MEAN, IMAGENET_STD, preprocess_crops
+
+log = logging.getLogger("dronekey.train")
+
+# Front/back swap of the keypoint order (1 FR <-> 2 RR, 3 RL <-> 4 FL): the hard failure mode.
+FRONT_BACK_SWAP = [1, 0, 3, 2]
+
+
+@dataclass(frozen=True)
+class Recipe:
+    """Everything that defines a training run besides the data source."""
+
+    model: dict
+    epochs: int
+    samples_per_epoch: int
+    batch_size: int
+    lr: float
+    optimizer: str = "adamw"
+    weight_decay: float = 1e-4
+    warmup_steps: int = 300
+    cosine: bool = True
+    loss: str = "pose"
+    schedule: str = "exp"
+    alpha: float = 5.0
+    D: float = 10.0
+    eps: float = 1e-4
+    presence_weight: float = 0.25
+    val_samples: int = 1500
+    patience: int = 12
+    crop: dict = field(default_factory=lambda: asdict(CropPolicy()))
+
+
+def _recipes() -> dict[str, Recipe]:
+    from dronekey.model import DroneKeyConfig
+
+    edge = DroneKeyConfig.edge()
+    paper = DroneKeyConfig.paper()
+    tiny = replace(edge, d_model=32, num_layers=2, num_heads=2, ff_dim=64, edge_widths=(8, 16, 16, 24, 32))
+    return {
+        "edge": Recipe(model=edge.to_dict(), epochs=40, samples_per_epoch=16384, batch_size=64, lr=2e-3),
+        "paper": Recipe(
+            model=paper.to_dict(),
+            epochs=100,
+            samples_per_epoch=7000,
+            batch_size=8,
+            lr=1e-5,
+            optimizer="adam",
+            weight_decay=0.0,
+            warmup_steps=0,
+            cosine=False,
+            crop=asdict(CropPolicy(input_size=paper.input_size)),
+        ),
+        "tiny": Recipe(
+            model=tiny.to_dict(),
+            epochs=2,
+            samples_per_epoch=64,
+            batch_size=16,
+            lr=2e-3,
+            val_samples=64,
+            warmup_steps=2,
+        ),
+    }
+
+
+# ----------------------------------------------------------------------------- data
+class _StreamDataset:
+    """Infinite stream of rendered crops for a torch DataLoader; each worker has its own seed."""
+
+    def __init__(self, seed: int, crop: CropPolicy, backgrounds: str | None) -> None:
+        self.seed, self.crop, self.backgrounds = seed, crop, backgrounds
+
+    def __iter__(self):
+        import torch
+
+        from dronekey.sim_replay.sampler import CropSampler, SamplerConfig
+
+        info = torch.utils.data.get_worker_info()
+        wid = info.id if info is not None else 0
+        sampler = CropSampler(
+            SamplerConfig(crop=self.crop), seed=self.seed * 1009 + wid, backgrounds=self.backgrounds
+        )
+        while True:
+            s = sampler.sample()
+            x = preprocess_crops(s.image, self.crop.input_size, IMAGENET_MEAN, IMAGENET_STD)[0]
+            yield x, s.keypoints, bool(s.present), np.float32(s.area)
+
+
+def _make_loader(seed: int, crop: CropPolicy, batch: int, workers: int, backgrounds: str | None):
+    import torch
+
+    class _Iterable(torch.utils.data.IterableDataset):
+        def __iter__(self):
+            return iter(_StreamDataset(seed, crop, backgrounds))
+
+    return torch.utils.data.DataLoader(
+        _Iterable(),
+        batch_size=batch,
+        num_workers=workers,
+        persistent_workers=workers > 0,
+        prefetch_factor=4 if workers else None,
+    )
+
+
+def _validation_set(path: Path, n: int, seed: int, crop: CropPolicy, backgrounds: str | None) -> dict:
+    """A fixed set of rendered crops, cached next to the checkpoints so a resumed run sees the same."""
+    if path.is_file():
+        data = dict(np.load(path))
+        if len(data["image"]) == n and data["image"].shape[1] == crop.input_size:
+            return data
+    from tqdm import tqdm
+
+    from dronekey.sim_replay.sampler import CropSampler, SamplerConfig
+
+    sampler = CropSampler(SamplerConfig(crop=crop), seed=seed, backgrounds=backgrounds)
+    samples = [
+        sampler.sample() for _ in tqdm(range(n), desc="rendering validation crops", unit="crop", leave=False)
+    ]
+    data = {
+        "image": np.stack([s.image for s in samples]),
+        "keypoints": np.stack([s.keypoints for s in samples]),
+        "present": np.array([s.present for s in samples]),
+        "area": np.array([s.area for s in samples], dtype=np.float32),
+    }
+    tmp = path.with_suffix(".tmp.npz")
+    np.savez_compressed(tmp, **data)
+    tmp.replace(path)
+    return data
+
+
+# ----------------------------------------------------------------------------- evaluation
+def evaluate(net, data: dict, batch: int = 128) -> dict:
+    """Keypoint metrics of ``net`` on a set of crops (normalised units; OKS is scale-free).
+
+    Returns sr90, sr95, ap_kp, presence_auc (percent), median_err_px (of the network input),
+    swap_rate (share of drones whose front/back order is swapped, percent), and the mean gate weights.
+    """
+    import torch
+
+    from dronekey.metrics import ap_kp, oks_drone, roc_auc, sr
+
+    net.eval()
+    S = data["image"].shape[1]
+    kps, pres, gates = [], [], []
+    with torch.no_grad():
+        for i in range(0, len(data["image"]), batch):
+            x = torch.from_numpy(
+                preprocess_crops(data["image"][i : i + batch], S, IMAGENET_MEAN, IMAGENET_STD)
+            )
+            out = net(x)
+            kps.append(out.keypoints.numpy())
+            pres.append(torch.sigmoid(out.presence_logit).numpy())
+            gates.append(out.gate.numpy())
+    kp, p, gate = np.concatenate(kps), np.concatenate(pres), np.concatenate(gates)
+    present = data["present"].astype(bool)
+    gt, area = data["keypoints"][present], data["area"][present]
+    oks = oks_drone(kp[present], gt, area)
+    err = np.linalg.norm(kp[present] - gt, axis=2) * S
+    swapped_err = np.linalg.norm(kp[present][:, FRONT_BACK_SWAP] - gt, axis=2) * S
+    ap = ap_kp(kp, data["keypoints"], data["area"], p, has_gt=present)
+    return {
+        "sr90": 100 * sr(oks, 0.90),
+        "sr95": 100 * sr(oks, 0.95),
+        "ap_kp": 100 * ap,
+        "presence_auc": 100 * roc_auc(p, present),
+        "median_err_px": float(np.median(err)),
+        "p90_err_px": float(np.percentile(err.mean(axis=1), 90)),
+        "swap_rate": 100 * float(np.mean(swapped_err.mean(1) < err.mean(1))),
+        "gate": gate[present].mean(axis=0).tolist(),
+    }
+
+
+# ----------------------------------------------------------------------------- plots
+def write_plots(history: list[dict], out_dir: Path) -> None:
+    """Loss and S(t) per epoch (paper Fig. 5) and mean gate weight per encoder layer (Fig. 8)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    if not history:
+        return
+    ep = [h["epoch"] for h in history]
+    fig, ax1 = plt.subplots(figsize=(6, 3.5))
+    ax1.plot(ep, [h["train_loss"] for h in history], "r--", label="loss")
+    ax1.set_xlabel("epoch")
+    ax1.set_ylabel("training loss", color="r")
+    ax2 = ax1.twinx()
+    ax2.plot(ep, [h["scale"] for h in history], "b-", label="S(t)")
+    ax2.set_ylabel("scale S(t)", color="b")
+    fig.tight_layout()
+    fig.savefig(out_dir / "loss_scale.png", dpi=120)
+    plt.close(fig)
+
+    gate = history[-1]["val"]["gate"]
+    fig, ax = plt.subplots(figsize=(5, 3))
+    colours = ["tab:pink"] * (len(gate) - 1) + ["tab:orange"]
+    ax.bar(range(1, len(gate) + 1), gate, color=colours)
+    ax.set_xlabel("encoder layer")
+    ax.set_ylabel("mean gate weight")
+    ax.set_title(f"gate weights, epoch {history[-1]['epoch']}")
+    fig.tight_layout()
+    fig.savefig(out_dir / "gate_weights.png", dpi=120)
+    plt.close(fig)
+
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    for key in ("ap_kp", "sr90", "sr95"):
+        ax.plot(ep, [h["val"][key] for h in history], label=key)
+    ax.set_xlabel("epoch")
+    ax.set_ylabel("%")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(out_dir / "validation.png", dpi=120)
+    plt.close(fig)
+
+
+# ----------------------------------------------------------------------------- training
+def train(args: argparse.Namespace) -> dict:
+    import torch
+
+    from dronekey.loss import build_loss
+    from dronekey.model import DroneKeyConfig, DroneKeyNet, count_parameters, load_checkpoint, save_checkpoint
+
+    recipe = _recipes()[args.preset]
+    overrides = {
+        k: v
+        for k, v in {
+            "epochs": args.epochs,
+            "samples_per_epoch": args.samples_per_epoch,
+            "batch_size": args.batch,
+            "lr": args.lr,
+            "loss": args.loss,
+            "schedule": args.schedule,
+            "alpha": args.alpha,
+            "D": args.D,
+            "val_samples": args.val_samples,
+            "patience": args.patience,
+        }.items()
+        if v is not None
+    }
+    recipe = replace(recipe, **overrides)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    torch.manual_seed(args.seed)
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    crop = CropPolicy(**recipe.crop)
+    state_path, last_path, best_path = out / "state.pt", out / "last.pt", out / "best.pt"
+
+    start_epoch, history, best_ap = 0, [], -1.0
+    if args.resume and last_path.is_file() and state_path.is_file():
+        net, meta = load_checkpoint(last_path)
+        state = torch.load(state_path, weights_only=False)
+        recipe = Recipe(**state["recipe"])
+        start_epoch, history, best_ap = state["epoch"] + 1, state["history"], state["best_ap"]
+        log.info("resuming %s at epoch %d (best AP %.2f)", out, start_epoch, best_ap)
+    else:
+        if args.resume:
+            log.info("nothing to resume in %s; starting a new run", out)
+        net = DroneKeyNet(DroneKeyConfig.from_dict(recipe.model))
+        state = None
+    net = net.to(memory_format=torch.channels_last)  # faster convolutions in oneDNN
+    use_bf16 = args.precision == "bf16" or (args.precision == "auto" and _cpu_has_bf16())
+    log.info("mixed precision: %s", "bfloat16 autocast (fp32 weights)" if use_bf16 else "off (fp32)")
+    net.train()
+    params = [p for p in net.parameters() if p.requires_grad]
+    if recipe.optimizer == "adam":
+        opt = torch.optim.Adam(params, lr=recipe.lr, weight_decay=recipe.weight_decay)
+    else:
+        opt = torch.optim.AdamW(params, lr=recipe.lr, weight_decay=recipe.weight_decay)
+    steps_per_epoch = max(1, recipe.samples_per_epoch // recipe.batch_size)
+    total_steps = steps_per_epoch * recipe.epochs
+
+    def lr_at(step: int) -> float:
+        if step < recipe.warmup_steps:
+            return (step + 1) / recipe.warmup_steps
+        if not recipe.cosine:
+            return 1.0
+        p = (step - recipe.warmup_steps) / max(1, total_steps - recipe.warmup_steps)
+        return 0.01 + 0.99 * 0.5 * (1 + math.cos(math.pi * min(p, 1.0)))
+
+    sched = torch.optim.lr_scheduler.LambdaLR(opt, lr_at)
+    if state is not None:
+        opt.load_state_dict(state["optimizer"])
+        sched.load_state_dict(state["scheduler"])
+    loss_fn = build_loss(
+        recipe.loss, recipe.schedule, recipe.alpha, recipe.D, total_epochs=100, eps=recipe.eps
+    )
+    bce = torch.nn.BCEWithLogitsLoss()
+
+    val = _validation_set(
+        out / f"val_{recipe.val_samples}_{crop.input_size}.npz",
+        recipe.val_samples,
+        7919,
+        crop,
+        args.backgrounds,
+    )
+    loader = _make_loader(
+        args.seed + 7 * start_epoch, crop, recipe.batch_size, args.workers, args.backgrounds
+    )
+    batches = iter(loader)
+    n_params = count_parameters(net)
+    log.info(
+        "training %s (%.2f M parameters) for %d epochs x %d steps of %d crops; output in %s",
+        args.preset,
+        n_params / 1e6,
+        recipe.epochs,
+        steps_per_epoch,
+        recipe.batch_size,
+        out,
+    )
+    from tqdm import tqdm
+
+    stale = 0  # epochs since the best AP
+    if history:
+        best_epoch = max(history, key=lambda h: h["val"]["ap_kp"])["epoch"]
+        stale = history[-1]["epoch"] - best_epoch
+    t_start = time.time()
+    for epoch in range(start_epoch, recipe.epochs):
+        net.train()
+        losses, t0 = [], time.time()
+        bar = tqdm(
+            range(steps_per_epoch), desc=f"epoch {epoch + 1}/{recipe.epochs}", unit="step", leave=False
+        )
+        for i in bar:
+            x, kp, present, _area = next(batches)
+            step = epoch * steps_per_epoch + i
+            t_sched = 100.0 * step / total_steps
+            with torch.autocast("cpu", dtype=torch.bfloat16, enabled=use_bf16):
+                out_net = net(x.contiguous(memory_format=torch.channels_last))
+            loss_kp = loss_fn(out_net.keypoints.float(), kp, t_sched, present)
+            loss = loss_kp + recipe.presence_weight * bce(out_net.presence_logit.float(), present.float())
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            torch.nn.utils.clip_grad_norm_(params, 2.0)
+            opt.step()
+            sched.step()
+            losses.append(float(loss.item()))
+            bar.set_postfix(loss=f"{np.mean(losses[-50:]):.4f}", S=f"{loss_fn.scale(t_sched):.3f}")
+        train_s = time.time() - t0
+        metrics = evaluate(net, val)
+        t_sched_end = 100.0 * (epoch + 1) * steps_per_epoch / total_steps
+        entry = {
+            "epoch": epoch + 1,
+            "train_loss": float(np.mean(losses)),
+            "scale": loss_fn.scale(t_sched_end),
+            "lr": float(sched.get_last_lr()[0]),
+            "train_s": train_s,
+            "samples_per_s": steps_per_epoch * recipe.batch_size / train_s,
+            "val": metrics,
+        }
+        history.append(entry)
+        improved = metrics["ap_kp"] > best_ap
+        meta = {
+            "trained_on": args.data_description,
+            "recipe": args.preset,
+            "epochs": epoch + 1,
+            "figures": {k: round(v, 3) for k, v in metrics.items() if k != "gate"},
+            "crop_policy": recipe.crop,
+            "train_seconds": float(sum(h["train_s"] for h in history)),
+        }
+        save_checkpoint(last_path, net, meta)
+        if improved:
+            best_ap, stale = metrics["ap_kp"], 0
+            save_checkpoint(best_path, net, meta)
+        else:
+            stale += 1
+        torch.save(
+            {
+                "recipe": asdict(recipe),
+                "epoch": epoch,
+                "history": history,
+                "best_ap": best_ap,
+                "optimizer": opt.state_dict(),
+                "scheduler": sched.state_dict(),
+            },
+            state_path,
+        )
+        (out / "history.json").write_text(json.dumps(history, indent=1))
+        write_plots(history, out)
+        log.info(
+            "epoch %d: loss %.4f S %.3f | AP %.2f SR90 %.2f SR95 %.2f AUC %.2f | median %.2f px p90 %.2f px"
+            " swap %.2f%% | %.0f crops/s%s",
+            epoch + 1,
+            entry["train_loss"],
+            entry["scale"],
+            metrics["ap_kp"],
+            metrics["sr90"],
+            metrics["sr95"],
+            metrics["presence_auc"],
+            metrics["median_err_px"],
+            metrics["p90_err_px"],
+            metrics["swap_rate"],
+            entry["samples_per_s"],
+            " (best)" if improved else "",
+        )
+        if stale >= recipe.patience:
+            log.info("no AP improvement for %d epochs: stopping early", stale)
+            break
+    log.info(
+        "done in %.1f min; best AP %.2f; checkpoints %s, %s",
+        (time.time() - t_start) / 60,
+        best_ap,
+        best_path,
+        last_path,
+    )
+    return {"best_ap": best_ap, "history": history}
+
+
+def _cpu_has_bf16() -> bool:
+    """Whether oneDNN has native bfloat16 kernels here (AVX512-BF16 / AMX): then autocast pays off."""
+    import torch
+
+    try:
+        return bool(torch.ops.mkldnn._is_mkldnn_bf16_supported())
+    except (AttributeError, RuntimeError):
+        return False
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="dronekey-train",
+        description="Train the DroneKey keypoint network (see the module docstring for the recipes).",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    p.add_argument("--preset", choices=["edge", "paper", "tiny"], default="edge", help="training recipe")
+    p.add_argument("--out", default="runs/edge", help="folder for checkpoints, history and plots")
+    p.add_argument("--resume", action="store_true", help="continue the run in --out from its last epoch")
+    p.add_argument(
+        "--seed", type=int, default=0, help="seed of the training stream (validation uses its own)"
+    )
+    p.add_argument("--backgrounds", default=None, help="folder of background photos mixed into the renders")
+    p.add_argument("--workers", type=int, default=1, help="rendering processes feeding the trainer")
+    p.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")
+    p.add_argument(
+        "--precision",
+        choices=["auto", "bf16", "fp32"],
+        default="auto",
+        help="bf16: bfloat16 autocast with fp32 weights (about 2x faster on CPUs with AVX512-BF16); "
+        "auto: bf16 where the CPU has native support",
+    )
+    g = p.add_argument_group("recipe overrides (default: the preset's)")
+    g.add_argument("--epochs", type=int)
+    g.add_argument("--samples-per-epoch", type=int)
+    g.add_argument("--batch", type=int)
+    g.add_argument("--lr", type=float)
+    g.add_argument("--loss", choices=["pose", "gaussian", "mse"])
+    g.add_argument("--schedule", choices=["exp", "linear", "fixed"])
+    g.add_argument("--alpha", type=float)
+    g.add_argument("--D", type=float)
+    g.add_argument("--val-samples", type=int)
+    g.add_argument("--patience", type=int)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(message)s", stream=sys.stderr)
+    for name in ("epochs", "samples_per_epoch", "batch", "val_samples", "patience"):
+        v = getattr(args, name)
+        if v is not None and v <= 0:
+            parser.error(f"--{name.replace('_', '-')} must be positive, got {v}")
+    if args.workers < 0:
+        parser.error(f"--workers must be >= 0, got {args.workers}")
+    if args.backgrounds is not None and not Path(args.backgrounds).is_dir():
+        parser.error(f"--backgrounds folder not found: {args.backgrounds}")
+    args.data_description = "dronekey.sim_replay rendered crops" + (
+        f" + photos from {args.backgrounds}" if args.backgrounds else ""
+    )
+    try:
+        train(args)
+    except KeyboardInterrupt:
+        print("dronekey-train: interrupted; resume with --resume", file=sys.stderr)
+        return 130
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
