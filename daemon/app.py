@@ -230,13 +230,26 @@ class DaemonApp:
         self._workers = build_outputs(self.config, ctx)
 
     def _describe_model(self, pipeline: Pipeline) -> dict:
-        info = dict(pipeline.info())
-        path = info.get("path") or info.get("model_path")
-        info.setdefault("path", str(path) if path is not None else None)
-        info.setdefault("name", Path(path).stem if path else None)
-        if "sha256" not in info:
-            info["sha256"] = _file_sha256(Path(path)) if path else None
-        return info
+        """The status message's ``model``: name, path, sha256, providers, input size and drone."""
+        info = pipeline.info()
+        model = dict(info.get("model") or {})
+        path = model.get("path")
+        drone = info.get("drone")
+        described = {
+            "name": Path(path).stem if path else None,
+            "path": str(path) if path else None,
+            "sha256": _file_sha256(Path(path)) if path else None,
+            **{k: v for k, v in model.items() if k != "path"},
+            "drone": drone.get("name") if isinstance(drone, Mapping) else drone,
+        }
+        log.info(
+            "model %s (%s, sha256 %s...) on %s",
+            described["name"],
+            described["path"],
+            (described["sha256"] or "?")[:12],
+            ", ".join(described.get("providers") or ["?"]),
+        )
+        return described
 
     def _handle_frame(self, item: CapturedFrame) -> None:
         frame = item.frame

@@ -88,6 +88,69 @@ def serve(port: int) -> None:
                 conn.close()
 
 
+def write_untrained_model(path: Path, input_size: int = 64) -> Path:
+    """An ONNX file with the keypoint model's contract (dronekey.export) that never sees a drone.
+
+    The daemon tests that are about the service (signals, sd_notify, sources, exit codes) run the
+    real pipeline and ONNX Runtime with it, independently of the trained model: ``presence`` is 0,
+    ``keypoints`` a fixed square, ``gate`` uniform.
+    """
+    import json
+
+    import onnx
+    from onnx import TensorProto, helper
+
+    s = int(input_size)
+    nodes = [
+        helper.make_node("ReduceMean", ["image"], ["mean"], axes=[1, 2, 3], keepdims=0),
+        helper.make_node("Mul", ["mean", "zero"], ["nothing"]),  # (batch,) zeros
+        helper.make_node("Identity", ["nothing"], ["presence"]),
+        helper.make_node("Reshape", ["nothing", "shape_b11"], ["nothing_b11"]),
+        helper.make_node("Add", ["nothing_b11", "square"], ["keypoints"]),
+        helper.make_node("Reshape", ["nothing", "shape_b1"], ["nothing_b1"]),
+        helper.make_node("Add", ["nothing_b1", "uniform"], ["gate"]),
+    ]
+    square = np.array([[0.6, 0.4], [0.6, 0.6], [0.4, 0.6], [0.4, 0.4]], np.float32)
+    inits = [
+        helper.make_tensor("zero", TensorProto.FLOAT, [], [0.0]),
+        helper.make_tensor("shape_b11", TensorProto.INT64, [3], [-1, 1, 1]),
+        helper.make_tensor("shape_b1", TensorProto.INT64, [2], [-1, 1]),
+        helper.make_tensor("square", TensorProto.FLOAT, [4, 2], square.ravel().tolist()),
+        helper.make_tensor("uniform", TensorProto.FLOAT, [6], [1 / 6] * 6),
+    ]
+    graph = helper.make_graph(
+        nodes,
+        "untrained_dronekey",
+        [helper.make_tensor_value_info("image", TensorProto.FLOAT, ["batch", 3, s, s])],
+        [
+            helper.make_tensor_value_info("keypoints", TensorProto.FLOAT, ["batch", 4, 2]),
+            helper.make_tensor_value_info("presence", TensorProto.FLOAT, ["batch"]),
+            helper.make_tensor_value_info("gate", TensorProto.FLOAT, ["batch", 6]),
+        ],
+        inits,
+    )
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+    model.ir_version = 8
+    metadata = {
+        "input_size": [s, s],
+        "normalisation": {
+            "color": "RGB",
+            "scale": 1 / 255,
+            "mean": [0.485, 0.456, 0.406],
+            "std": [0.229, 0.224, 0.225],
+        },
+        "keypoint_names": ["prop1", "prop2", "prop3", "prop4"],
+        "crop_policy": {"input_size": s},
+        "trained_on": "nothing (test model)",
+        "precision": "fp32",
+    }
+    for key, value in metadata.items():
+        model.metadata_props.add(key=key, value=json.dumps(value))
+    onnx.checker.check_model(model)
+    onnx.save(model, str(path))
+    return path
+
+
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))

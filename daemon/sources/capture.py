@@ -259,6 +259,7 @@ class Capture:
         interval_ns = round(1e9 / (self.reader.frame_rate or 30.0))
         t_offset_ns = 0
         restarted = False
+        passes = 0
         last_t_ns: int | None = None
         pace_origin: tuple[float, int] | None = None  # (monotonic s, frame t_ns) of the first frame
         while not self._stop.is_set():
@@ -275,7 +276,11 @@ class Capture:
                 with self._busy():
                     self.reader.open()
                 restarted = True
-                log.info("source %s: looping to its start", self.reader.description)
+                passes += 1
+                level = logging.INFO if passes == 1 else logging.DEBUG
+                log.log(
+                    level, "source %s: looping to its start (pass %d)", self.reader.description, passes + 1
+                )
                 continue
             if restarted and last_t_ns is not None:
                 t_offset_ns = last_t_ns + interval_ns - result.t_ns
