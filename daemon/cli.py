@@ -49,8 +49,9 @@ def build_parser() -> argparse.ArgumentParser:
     """The argument parser; every flag defaults to "not given" so the config file's value stands."""
     p = argparse.ArgumentParser(
         prog="dronekey-daemon",
-        description="Track drones in a video source (DroneKey keypoints, PnP 6DoF, Kalman tracks) and "
-        "publish the tracks over Zenoh, MAVLink and SBS-1 and into an MCAP log.",
+        description="Track drones in a video source (DroneKey keypoints, PnP 6DoF, Kalman tracks)\n"
+        "and publish the tracks over Zenoh, MAVLink and SBS-1 and into an MCAP log.\n"
+        "Flags override the config file; docs/daemon.md is the user guide.",
         epilog=_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
         argument_default=argparse.SUPPRESS,
