@@ -338,6 +338,7 @@ class PoseEstimator:
             covariance=covariance,
             alternative=alternative,
             method=self.method.value,
+            keypoint_sigma_px=self.keypoint_sigma_px,
         )
 
     def reprojection_px(self, keypoints_px: np.ndarray, R: np.ndarray, t: np.ndarray) -> float:

@@ -10,9 +10,22 @@ measurements (as norfair's ``Tracker.update``). Each track holds two filters (DE
 
 Measurements are assigned to tracks by gated nearest neighbour: the cost is the squared
 Mahalanobis distance of the position innovation, pairs above ``position_gate_chi2`` are forbidden,
-and ``scipy.optimize.linear_sum_assignment`` solves the rest. The rotation has its own gate: a
-rotation that fails it (typically the wrong IPPE solution) is replaced by the measurement's
-``alternative`` when that one passes, and is otherwise not used (the position still is).
+and ``scipy.optimize.linear_sum_assignment`` solves the rest.
+
+Orientation and the IPPE ambiguity: of a measurement's two solutions (``R`` and ``alternative``),
+the track is updated with the one nearer its own orientation, if it passes ``rotation_gate_chi2``.
+Planar PnP cannot always tell the two apart in one frame, and the estimator follows the track's
+prediction when it cannot, so a track that started on the wrong solution would stay there. Each
+track therefore keeps the log-odds that the solution it does *not* follow is the right one: it
+starts at 0 (no preference) and adds, every frame, the log-likelihood ratio
+``(SSR_own - SSR_other) / (2 sigma^2)`` (SSR: summed squared reprojection error of the four
+keypoints, sigma: the measurement's ``keypoint_sigma_px``). Above ``branch_switch_log_odds`` the
+track's orientation is re-initialised on the other solution and the log-odds change sign (the two
+swap roles). They are floored at ``-branch_confidence_cap`` so that no amount of agreement makes a
+track deaf to later evidence. Frames that cannot tell the solutions apart add nothing.
+
+A rotation that fails the gate with no usable alternative is skipped (the position is still used);
+after ``rotation_reset_after`` in a row the orientation is re-initialised from the measurement.
 
 Lifecycle: a new track is TENTATIVE; it becomes CONFIRMED after ``confirm_hits`` hits within its
 first ``confirm_window`` frames, or is dropped. A confirmed track without a measurement is
@@ -44,6 +57,9 @@ _NS_PER_S = 1_000_000_000
 _FORBIDDEN = 1e12  # assignment cost of a gated-out pair
 
 
+_MAY_BE_ZERO = frozenset()
+
+
 @dataclass(frozen=True)
 class TrackerConfig:
     """Thresholds and noise levels of :class:`Tracker`; every field is checked on construction.
@@ -59,12 +75,11 @@ class TrackerConfig:
     rotation_gate_chi2 : the same for the rotation innovation.
     rotation_reset_after : after this many consecutive gated-out rotations of an updated track, the
         orientation is re-initialised from the measurement (the track had locked onto a wrong one).
-    use_alternative, alternative_max_extra_px : when a measurement's rotation fails the gate, use its
-        alternative IPPE solution instead if that one passes and reprojects at most
-        ``alternative_max_extra_px`` worse (so only when the keypoints cannot tell the two apart:
-        a clearly better fit is never traded for the track's opinion, or a track that locked onto
-        the wrong solution could never leave it). The estimator already does this with the
-        prediction as prior; this catches measurements made without one.
+    branch_switch_log_odds : log-odds in favour of the IPPE solution a track does not follow at
+        which it switches to it (2: odds of about 7 to 1; the hysteresis between switching and
+        switching back is twice this).
+    branch_confidence_cap : floor on those log-odds, as a positive number: the most a track can
+        be sure of its solution (7: about 1000 to 1).
     confirm_hits, confirm_window : a track is confirmed after ``confirm_hits`` hits within its first
         ``confirm_window`` frames (update calls); otherwise it is dropped.
     max_coast_s : a track without a measurement for longer than this (seconds) is lost.
@@ -78,8 +93,8 @@ class TrackerConfig:
     position_gate_chi2: float = 16.27
     rotation_gate_chi2: float = 16.27
     rotation_reset_after: int = 5
-    use_alternative: bool = True
-    alternative_max_extra_px: float = 1.0
+    branch_switch_log_odds: float = 2.0
+    branch_confidence_cap: float = 7.0
     confirm_hits: int = 3
     confirm_window: int = 5
     max_coast_s: float = 1.0
@@ -88,19 +103,19 @@ class TrackerConfig:
     def __post_init__(self) -> None:
         for f in fields(self):
             value = getattr(self, f.name)
-            if f.type == "bool":
-                if not isinstance(value, bool):
-                    raise ValueError(f"TrackerConfig.{f.name} must be a bool, got {value!r}")
-            elif f.type == "int":
+            if f.type == "int":
                 if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
                     raise ValueError(f"TrackerConfig.{f.name} must be an integer >= 1, got {value!r}")
-            elif (
+                continue
+            lowest_ok = 0.0 if f.name in _MAY_BE_ZERO else math.nextafter(0.0, 1.0)
+            if (
                 isinstance(value, bool)
                 or not isinstance(value, int | float | np.number)
                 or not math.isfinite(value)
-                or value <= 0
+                or value < lowest_ok
             ):
-                raise ValueError(f"TrackerConfig.{f.name} must be a positive finite number, got {value!r}")
+                kind = "non-negative" if f.name in _MAY_BE_ZERO else "positive"
+                raise ValueError(f"TrackerConfig.{f.name} must be a {kind} finite number, got {value!r}")
         if self.confirm_window < self.confirm_hits:
             raise ValueError(
                 f"TrackerConfig.confirm_window must be >= confirm_hits ({self.confirm_hits}), "
@@ -168,6 +183,7 @@ class _TrackRecord:
         self.frames = 1  # update calls seen, the birth frame included
         self.window: deque[bool] = deque([True], maxlen=config.confirm_window)
         self.rotation_misses = 0
+        self.branch_evidence = 0.0  # log-odds that the IPPE solution not followed is the right one
         self.position = ConstantVelocityFilter(
             measurement.t, cov[:3, :3], config.initial_velocity_std_mps, config.accel_std_mps2
         )
@@ -372,34 +388,7 @@ class Tracker:
     ) -> None:
         cfg = self.config
         track.position.update(m.t, m.covariance[:3, :3])
-        rot_cov = m.covariance[3:, 3:]
-        candidates = [m.R]
-        if (
-            cfg.use_alternative
-            and m.alternative is not None
-            and m.alternative[2] <= m.reprojection_px + cfg.alternative_max_extra_px
-        ):
-            candidates.append(m.alternative[0])
-        d2 = [track.orientation.mahalanobis_sq(R, rot_cov) for R in candidates]
-        best = int(np.argmin(d2))
-        if d2[best] <= cfg.rotation_gate_chi2:
-            track.orientation.update(candidates[best], rot_cov)
-            track.rotation_misses = 0
-            if best == 1:
-                log.debug("track %d: used the alternative IPPE solution", track.track_id)
-        else:
-            track.rotation_misses += 1
-            log.debug("track %d: rotation gated out (d2 = %.1f)", track.track_id, d2[best])
-            if track.rotation_misses >= cfg.rotation_reset_after:
-                log.info(
-                    "track %d: orientation re-initialised after %d gated-out rotations",
-                    track.track_id,
-                    track.rotation_misses,
-                )
-                track.orientation = OrientationFilter(
-                    m.R, rot_cov, cfg.initial_angular_velocity_std_radps, cfg.angular_accel_std_radps2
-                )
-                track.rotation_misses = 0
+        self._update_orientation(track, m)
         track.hits += 1
         track.frames += 1
         track.window.append(True)
@@ -413,6 +402,50 @@ class Tracker:
                 log.info("track %d confirmed", track.track_id)
         else:
             track.status = TrackStatus.CONFIRMED
+
+    def _update_orientation(self, track: _TrackRecord, m: PoseMeasurement) -> None:
+        cfg = self.config
+        rot_cov = m.covariance[3:, 3:]
+        branches = [(m.R, m.reprojection_px)]
+        if m.alternative is not None:
+            branches.append((m.alternative[0], m.alternative[2]))
+        d2 = [track.orientation.mahalanobis_sq(R, rot_cov) for R, _ in branches]
+        own = int(np.argmin(d2))
+        if len(branches) == 2 and math.isfinite(m.keypoint_sigma_px) and m.keypoint_sigma_px > 0:
+            other_R, other_px = branches[1 - own]
+            log_odds = 2.0 * (branches[own][1] ** 2 - other_px**2) / m.keypoint_sigma_px**2
+            track.branch_evidence = max(-cfg.branch_confidence_cap, track.branch_evidence + log_odds)
+            if track.branch_evidence > cfg.branch_switch_log_odds:
+                evidence = track.branch_evidence
+                log.info(
+                    "track %d: switched to the other IPPE solution (evidence %.1f)",
+                    track.track_id,
+                    track.branch_evidence,
+                )
+                self._reinitialise_orientation(track, other_R, rot_cov)
+                track.branch_evidence = -evidence  # own and other swap roles
+                return
+        if d2[own] <= cfg.rotation_gate_chi2:
+            track.orientation.update(branches[own][0], rot_cov)
+            track.rotation_misses = 0
+            return
+        track.rotation_misses += 1
+        log.debug("track %d: rotation gated out (d2 = %.1f)", track.track_id, d2[own])
+        if track.rotation_misses >= cfg.rotation_reset_after:
+            log.info(
+                "track %d: orientation re-initialised after %d gated-out rotations",
+                track.track_id,
+                track.rotation_misses,
+            )
+            self._reinitialise_orientation(track, m.R, rot_cov)
+
+    def _reinitialise_orientation(self, track: _TrackRecord, R: np.ndarray, rotation_cov: np.ndarray) -> None:
+        cfg = self.config
+        track.orientation = OrientationFilter(
+            R, rotation_cov, cfg.initial_angular_velocity_std_radps, cfg.angular_accel_std_radps2
+        )
+        track.rotation_misses = 0
+        track.branch_evidence = 0.0
 
     def _miss(self, track: _TrackRecord) -> None:
         track.frames += 1

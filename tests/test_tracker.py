@@ -4,6 +4,7 @@ and the whole estimator + tracker chain on noisy synthetic keypoints."""
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -36,14 +37,17 @@ def t_ns(frame: int, fps: float = FPS) -> int:
     return round(frame * 1e9 / fps)
 
 
-def measurement(R, t, pos_std=0.02, rot_std_deg=1.0, alternative=None) -> PoseMeasurement:
+def measurement(
+    R, t, pos_std=0.02, rot_std_deg=1.0, alternative=None, reprojection_px=0.3
+) -> PoseMeasurement:
     cov = np.diag([pos_std**2] * 3 + [math.radians(rot_std_deg) ** 2] * 3)
     return PoseMeasurement(
         R=np.asarray(R, dtype=float),
         t=np.asarray(t, dtype=float),
-        reprojection_px=0.3,
+        reprojection_px=reprojection_px,
         covariance=cov,
         alternative=alternative,
+        keypoint_sigma_px=1.0,
     )
 
 
@@ -104,6 +108,28 @@ def test_clearly_worse_alternative_is_not_used_to_keep_a_wrong_track_orientation
         m = measurement(right, position, alternative=(wrong, position, 6.3))
         (track,) = tracker.update(t_ns(k), [m])
     assert geodesic_angle_deg(quat_wxyz_to_matrix(track.quaternion_wxyz), right) < 1.0
+
+
+def test_reprojection_evidence_moves_a_track_to_the_other_ippe_solution():
+    position = np.array([0.0, 0.0, 12.0])
+    branch_a, branch_b = (
+        seen_from_below(20.0),
+        seen_from_below(20.0) @ rotation_from_euler_deg(0.0, 50.0, 0.0),
+    )
+
+    def frame(k, a_px, b_px):
+        m = measurement(branch_a, position, alternative=(branch_b, position, b_px), reprojection_px=a_px)
+        (track,) = tracker.update(t_ns(k), [m])
+        return geodesic_angle_deg(quat_wxyz_to_matrix(track.quaternion_wxyz), branch_a)
+
+    tracker = Tracker()
+    # B fits a little better every frame (log odds 2 (0.6^2 - 0.4^2) / 1^2 = 0.4 per frame)
+    angles = [frame(k, 0.6, 0.4) for k in range(12)]
+    assert angles[3] < 1.0  # a few frames are not enough ...
+    assert angles[-1] > 45.0  # ... a dozen are
+    tracker = Tracker()
+    # A fits a little better: the track never leaves it, however long the ambiguity lasts
+    assert max(frame(k, 0.4, 0.45) for k in range(200)) < 1.0
 
 
 def test_orientation_is_reinitialised_after_repeated_gated_rotations():
@@ -300,7 +326,7 @@ def test_time_going_backwards_is_refused_and_reset_reports_every_track_lost():
         ("position_gate_chi2", float("nan")),
         ("confirm_hits", 0),
         ("confirm_window", 2.5),
-        ("use_alternative", "yes"),
+        ("branch_confidence_cap", -0.1),
     ],
 )
 def test_config_errors_name_the_field_and_value(field, value):
@@ -330,8 +356,8 @@ def trajectory(tau: float):
     return R, t
 
 
-def run_chain(noise_px: float, frames: int = 150, seed: int = 0):
-    """Raw and filtered (angle deg, translation m) errors per frame, skipping the first 10."""
+def run_chain(noise_px: float, frames: int = 150, seed: int = 0, start_on_wrong_solution=False, skip=10):
+    """Raw and filtered (angle deg, translation m) errors per frame, skipping the first ``skip``."""
     rng = np.random.default_rng(seed)
     estimator = PoseEstimator(CAMERA, SPEC, keypoint_sigma_px=max(noise_px, 0.5))
     tracker = Tracker()
@@ -343,8 +369,13 @@ def run_chain(noise_px: float, frames: int = 150, seed: int = 0):
         prior = (predictions[0].R, predictions[0].t) if predictions else None
         m = estimator.estimate(uv, prior)
         assert isinstance(m, PoseMeasurement), m
+        if start_on_wrong_solution and k == 0:
+            R_alt, t_alt, px_alt = m.alternative
+            m = replace(
+                m, R=R_alt, t=t_alt, reprojection_px=px_alt, alternative=(m.R, m.t, m.reprojection_px)
+            )
         (track,) = live(tracker.update(t_ns(k), [m], scores=[1.0], keypoints_px=[uv]))
-        if k >= 10:
+        if k >= skip:
             raw.append((geodesic_angle_deg(m.R, R), np.linalg.norm(m.t - t)))
             R_f = quat_wxyz_to_matrix(track.quaternion_wxyz)
             filtered.append((geodesic_angle_deg(R_f, R), np.linalg.norm(track.position_m - t)))
@@ -361,3 +392,9 @@ def test_filtered_pose_beats_raw_pnp_on_noisy_keypoints():
     raw, filtered = run_chain(2.0)
     assert filtered[:, 0].mean() < raw[:, 0].mean()
     assert np.sqrt(np.mean(filtered[:, 1] ** 2)) < np.sqrt(np.mean(raw[:, 1] ** 2))
+
+
+def test_track_started_on_the_wrong_ippe_solution_recovers():
+    raw, filtered = run_chain(1.0, frames=60, start_on_wrong_solution=True, skip=0)
+    assert filtered[0, 0] > 30.0 and raw[0, 0] > 30.0  # it did start on the wrong one
+    assert filtered[-30:, 0].max() < 10.0
