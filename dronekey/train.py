@@ -288,7 +288,7 @@ def train(args: argparse.Namespace) -> dict:
     if args.resume and last_path.is_file() and state_path.is_file():
         net, meta = load_checkpoint(last_path)
         state = torch.load(state_path, weights_only=False)
-        recipe = Recipe(**state["recipe"])
+        recipe = replace(Recipe(**state["recipe"]), **overrides)  # e.g. more --epochs to extend a run
         start_epoch, history, best_ap = state["epoch"] + 1, state["history"], state["best_ap"]
         log.info("resuming %s at epoch %d (best AP %.2f)", out, start_epoch, best_ap)
     else:
