@@ -81,7 +81,7 @@ def load_calibration(path: Path) -> tuple[CameraModel, bool]:
         The file is missing or is not a usable calibration (the message says which).
     """
     try:
-        camera = CameraModel.load(path)
+        camera = CameraModel.load(path, allow_fisheye=True)
     except CalibrationError as exc:
         raise CalibInputError(str(exc)) from None
     fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)

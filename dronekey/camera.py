@@ -183,12 +183,14 @@ class CameraModel:
         tmp.replace(path)
 
     @classmethod
-    def load(cls, path: str | Path) -> CameraModel:
+    def load(cls, path: str | Path, allow_fisheye: bool = False) -> CameraModel:
         """Read an OpenCV FileStorage calibration (YAML or XML).
 
         Accepts the keys of OpenCV's calibration sample (``camera_matrix``,
         ``distortion_coefficients``, ``image_width``, ``image_height``) and, for stereo rigs, any one
-        key starting with ``camera_matrix`` / ``distortion_coefficients``.
+        key starting with ``camera_matrix`` / ``distortion_coefficients``. A fisheye calibration
+        (``fisheye_model: 1``) is refused unless ``allow_fisheye``: its four coefficients mean
+        something else than this model's k1, k2, p1, p2.
         """
         path = Path(path)
         if not path.is_file():
@@ -206,6 +208,12 @@ class CameraModel:
             dist = _read_mat(fs, keys, "distortion_coefficients", path)
             width = _read_int(fs, keys, "image_width", path)
             height = _read_int(fs, keys, "image_height", path)
+            fisheye = fs.getNode("fisheye_model")
+            if not allow_fisheye and not fisheye.empty() and fisheye.isInt() and int(fisheye.real()) == 1:
+                raise CalibrationError(
+                    f"{path} is a fisheye calibration (fisheye_model: 1); DroneKey uses OpenCV's pinhole "
+                    "model with radial-tangential distortion: calibrate again without --fisheye"
+                )
             rms_keys = [k for k in keys if k.startswith("avg_reprojection_error")]
             rms = float(fs.getNode(rms_keys[0]).real()) if len(rms_keys) == 1 else None
         finally:

@@ -131,3 +131,19 @@ def test_crop_outside_frame_is_black():
     img = np.full((100, 100, 3), 200, np.uint8)
     crop = crop_square(img, (-50, -50, 100), 50)
     assert crop[:20, :20].max() == 0 and crop[-10:, -10:].min() == 200
+
+
+def test_load_refuses_fisheye_unless_allowed(tmp_path):
+    import cv2
+
+    path = tmp_path / "fish.yaml"
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    fs.write("image_width", 640)
+    fs.write("image_height", 480)
+    fs.write("fisheye_model", 1)
+    fs.write("camera_matrix", np.array([[300.0, 0, 320], [0, 300, 240], [0, 0, 1]]))
+    fs.write("distortion_coefficients", np.array([[0.1, 0.01, 0.0, 0.0]]))
+    fs.release()
+    with pytest.raises(CalibrationError, match="fisheye"):
+        CameraModel.load(path)
+    assert CameraModel.load(path, allow_fisheye=True).dist.size == 4
