@@ -6,14 +6,20 @@ rotation and t the body origin (centroid of the hubs) in the camera frame, metre
 Pipeline of :meth:`PoseEstimator.estimate`:
 
 1. validate the keypoints (shape, finite, inside the frame give or take a margin, no near-duplicate
-   or collinear points, a quadrilateral in spec order whose edges do not cross);
+   or collinear points);
 2. undistort them with the camera model and solve ``cv2.solvePnPGeneric(..., SOLVEPNP_IPPE)``,
-   which returns the two poses that planar (4 coplanar points) PnP cannot tell apart well;
+   which returns the two poses that planar (4 coplanar points) PnP cannot tell apart well; a
+   solution IPPE puts behind the camera is replaced by its point reflection, which is in front
+   and has the same image;
 3. refine both with Levenberg-Marquardt on the *distorted* pixels, where the keypoint noise lives;
-4. drop solutions with a keypoint behind the camera, then choose: with a prior (the tracker's
-   prediction), the solution nearest to it in rotation unless the data clearly favour the other;
-   without one, the lower reprojection error. The other solution is kept as ``alternative``;
+4. drop solutions with a keypoint behind the camera; reject keypoints whose quadrilateral crosses
+   itself when no pose explains them within noise (swapped keypoints); then choose: with a prior
+   (the tracker's prediction), the solution nearest to it in rotation unless the data clearly
+   favour the other; without one, the lower reprojection error. The other solution is kept as
+   ``alternative``;
 5. propagate the keypoint noise to a 6x6 covariance of [t, rotation vector] in the camera frame.
+
+See docs/pose-and-tracking.md for the reasoning and measured behaviour.
 
 Bad data never raises: :meth:`PoseEstimator.estimate` returns a :class:`PoseRejection` with a reason.
 """
