@@ -387,7 +387,10 @@ class PoseEstimator:
         return None
 
     def _solve(self, uv: np.ndarray) -> list[_Candidate] | PoseRejection:
-        und = self.camera.undistort_points(uv)
+        try:
+            und = self.camera.undistort_points(uv)
+        except cv2.error as exc:
+            return PoseRejection(RejectionCode.SOLVER_FAILED, f"undistortPoints failed: {exc.err}")
         if not np.all(np.isfinite(und)):
             return PoseRejection(RejectionCode.NON_FINITE, "undistortion of the keypoints gave NaN or inf")
         try:

@@ -266,7 +266,6 @@ class Tracker:
             Every live track (tentative ones included, their status says so) and, once, each track
             lost in this call, ordered by track id.
         """
-        t_ns = self._check_time(t_ns)
         measurements = list(measurements)
         for i, m in enumerate(measurements):
             if not isinstance(m, PoseMeasurement):
@@ -277,7 +276,11 @@ class Tracker:
                     f"got shape {np.shape(m.covariance)}"
                 )
         scores = _per_measurement("scores", scores, len(measurements), float("nan"))
-        keypoints_px = _per_measurement("keypoints_px", keypoints_px, len(measurements), None)
+        keypoints_px = [
+            None if kp is None else np.array(kp, dtype=np.float64)
+            for kp in _per_measurement("keypoints_px", keypoints_px, len(measurements), None)
+        ]
+        t_ns = self._check_time(t_ns)
 
         for track in self._tracks.values():
             track.predict_to(t_ns)
@@ -291,9 +294,12 @@ class Tracker:
             if track.track_id not in matched:
                 self._miss(track)
             if self._is_lost(track):
+                if track.status is TrackStatus.TENTATIVE:
+                    log.debug("tentative track %d dropped after %d hits", track.track_id, track.hits)
+                else:
+                    log.info("track %d lost after %d hits", track.track_id, track.hits)
                 reports.append(track.to_track(TrackStatus.LOST))
                 del self._tracks[track.track_id]
-                log.info("track %d lost after %d hits", track.track_id, track.hits)
         for j in unmatched:
             if len(self._tracks) >= self.config.max_tracks:
                 log.debug("measurement ignored: max_tracks=%d live tracks", self.config.max_tracks)
