@@ -25,7 +25,6 @@ from dronekey.camera import CameraModel
 from dronekey.daemon.calibration import camera_at_resolution, resolve_calibration
 from dronekey.daemon.config import DaemonConfig
 from dronekey.daemon.errors import DaemonError, ExitCode, SourceFailedError, UsageError
-from dronekey.daemon.logs import LogMode
 from dronekey.daemon.messages import status_message
 from dronekey.daemon.outputs import OutputContext, build_outputs, close_outputs
 from dronekey.daemon.signals import SignalMonitor
@@ -99,7 +98,6 @@ class DaemonApp:
     signals : SignalMonitor
         Installed by the caller; its ``stop`` event ends the loop.
     notifier : SystemdNotifier
-    log_mode : LogMode
     status_line : TerminalStatusLine, optional
         The live line in terminal mode.
     pipeline_factory : callable, optional
@@ -112,14 +110,12 @@ class DaemonApp:
         *,
         signals: SignalMonitor,
         notifier: SystemdNotifier,
-        log_mode: LogMode,
         status_line: TerminalStatusLine | None = None,
         pipeline_factory: PipelineFactory | None = None,
     ) -> None:
         self.config = config
         self.signals = signals
         self.notifier = notifier
-        self.log_mode = log_mode
         self.status_line = status_line
         self._pipeline_factory = pipeline_factory or default_pipeline_factory
         self._geo = config.camera.camera_geo()
@@ -383,7 +379,3 @@ class DaemonApp:
             lat = f", p50 {p50:.1f} / p99 {p99:.1f} ms" if math.isfinite(p99) else ""
             parts.append(f"{name} {worker.stats.published} published {worker.stats.dropped} dropped{lat}")
         log.info("totals: %s", "; ".join(parts))
-
-    @property
-    def workers(self) -> Mapping[str, SinkWorker]:
-        return self._workers

@@ -14,7 +14,7 @@ from typing import Any
 
 import dronekey
 from dronekey.daemon.errors import EXIT_CODE_HELP, DaemonError, ExitCode, UsageError
-from dronekey.daemon.logs import LogMode, detect_log_mode, setup_logging
+from dronekey.daemon.logs import detect_log_mode, setup_logging
 
 __all__ = ["build_parser", "main"]
 
@@ -206,13 +206,13 @@ def main(argv: list[str] | None = None) -> int:
         return ExitCode.OK
     if getattr(args, "print_config", False):
         return ExitCode.OK
-    code = _run(config, mode, status_line)
+    code = _run(config, status_line)
     if argv is None:
         _exit_even_if_threads_linger(code)
     return int(code)
 
 
-def _run(config, mode: LogMode, status_line) -> ExitCode:
+def _run(config, status_line) -> ExitCode:
     from dronekey.daemon.app import DaemonApp
     from dronekey.daemon.signals import SignalMonitor
     from dronekey.daemon.systemd import SystemdNotifier
@@ -222,7 +222,7 @@ def _run(config, mode: LogMode, status_line) -> ExitCode:
     notifier = SystemdNotifier()
     log.info("dronekey-daemon %s starting (camera %s)", dronekey.__version__, config.camera.id)
     try:
-        app = DaemonApp(config, signals=signals, notifier=notifier, log_mode=mode, status_line=status_line)
+        app = DaemonApp(config, signals=signals, notifier=notifier, status_line=status_line)
         code = app.run()
     except DaemonError as exc:
         log.error("%s", exc)

@@ -12,6 +12,7 @@ import logging
 import threading
 import time
 from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from typing import Any
 
 from dronekey.camera import CameraModel
@@ -24,23 +25,18 @@ __all__ = ["OutputContext", "build_outputs", "close_outputs"]
 log = logging.getLogger(__name__)
 
 
+@dataclass(frozen=True)
 class OutputContext:
     """What the outputs need to know besides the config.
 
-    Parameters
-    ----------
-    camera : CameraModel
-        Intrinsics at the source's resolution.
-    model_info : mapping
-        ``name``, ``path``, ``sha256`` and more, for Zenoh's info queryable.
-    simulated : bool
-        True for ``sim://`` sources (ADS-B messages get their SIMULATED flag).
+    camera : intrinsics at the source's resolution.
+    model_info : ``name``, ``path``, ``sha256`` and more, for Zenoh's info queryable.
+    simulated : True for ``sim://`` sources (ADS-B messages get their SIMULATED flag).
     """
 
-    def __init__(self, camera: CameraModel, model_info: Mapping[str, Any], simulated: bool) -> None:
-        self.camera = camera
-        self.model_info = dict(model_info)
-        self.simulated = simulated
+    camera: CameraModel
+    model_info: Mapping[str, Any]
+    simulated: bool
 
 
 def _zenoh(config: DaemonConfig, ctx: OutputContext) -> Sink:

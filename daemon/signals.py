@@ -41,10 +41,8 @@ class SignalMonitor:
         self.signum: int | None = None
         self.requested_mono: float | None = None
         self._done = threading.Event()
-        self._previous: dict[int, object] = {}
         self._rsock: socket.socket | None = None
         self._wsock: socket.socket | None = None
-        self._previous_wakeup_fd = -1
 
     @property
     def exit_code(self) -> ExitCode | None:
@@ -55,21 +53,10 @@ class SignalMonitor:
         """Install the handlers (main thread only) and start the deadline guard."""
         self._rsock, self._wsock = socket.socketpair()
         self._wsock.setblocking(False)
-        self._previous_wakeup_fd = signal.set_wakeup_fd(self._wsock.fileno(), warn_on_full_buffer=False)
+        signal.set_wakeup_fd(self._wsock.fileno(), warn_on_full_buffer=False)
         for signum in _EXIT_CODES:
-            self._previous[signum] = signal.signal(signum, self._handle)
+            signal.signal(signum, self._handle)
         threading.Thread(target=self._guard, name="shutdown-guard", daemon=True).start()
-
-    def uninstall(self) -> None:
-        """Restore the previous handlers and stop the guard (after an orderly shutdown)."""
-        self._done.set()
-        for signum, handler in self._previous.items():
-            signal.signal(signum, handler)
-        self._previous.clear()
-        signal.set_wakeup_fd(self._previous_wakeup_fd)
-        if self._wsock is not None:
-            self._wsock.close()
-            self._wsock = None
 
     def finished(self) -> None:
         """The orderly shutdown is over; the deadline no longer applies."""

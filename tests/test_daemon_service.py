@@ -163,3 +163,23 @@ def test_live_source_that_never_comes_is_exit_3(tmp_path, assets):
     result = subprocess.run(args, env=daemon_env(), capture_output=True, text=True, timeout=60)
     assert result.returncode == ExitCode.SOURCE_FAILED, result.stderr
     assert "failed permanently" in result.stderr
+
+
+def test_outputs_without_peers_never_stop_tracking(tmp_path, assets):
+    """No Zenoh router (client mode), no MAVLink peer (TCP refused), an MCAP folder that cannot be
+    created: every frame is still processed and the file still ends with exit 0."""
+    blocker = tmp_path / "not-a-folder"
+    blocker.write_text("a file where the MCAP folder should be")
+    args = daemon_args(assets, str(assets / "clip.mp4"))
+    args = [a for a in args if a not in ("--no-zenoh", "--no-mavlink")]
+    args += [
+        "--zenoh-mode", "client", "--zenoh-connect", f"tcp/127.0.0.1:{free_port()}", "--no-zenoh-scouting",
+        "--mavlink", f"tcp:127.0.0.1:{free_port()}", "--mcap-dir", str(blocker / "mcap"),
+    ]  # fmt: skip
+    result = subprocess.run(args, env=daemon_env(), capture_output=True, text=True, timeout=60)
+    assert result.returncode == ExitCode.OK, result.stderr
+    totals = next(line for line in result.stderr.splitlines() if "totals:" in line)
+    assert "30 frames processed" in totals
+    warnings = [line.lower() for line in result.stderr.splitlines() if "WARNING" in line]
+    assert any("mcap" in line for line in warnings) and any("mavlink" in line for line in warnings)
+    assert "Traceback" not in result.stderr
