@@ -7,8 +7,8 @@ first frame for live sources), then loops: take a frame, run the pipeline, hand 
 (outputs, terminal or journal, systemd ``STATUS=``). systemd hears ``READY=1`` after the first frame
 went through the pipeline and ``WATCHDOG=1`` while the loop runs and no source call hangs.
 
-It returns the exit code (``errors.ExitCode``); ``UsageError`` and ``DaemonError`` propagate with
-their own code after every output was closed.
+It returns the exit code (``errors.ExitCode``) after logging why it stopped; ``UsageError`` (bad
+calibration, model or video) propagates, with exit code 2, after every output was closed.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from typing import Any, Protocol
 from dronekey.camera import CameraModel
 from dronekey.daemon.calibration import camera_at_resolution, resolve_calibration
 from dronekey.daemon.config import DaemonConfig
-from dronekey.daemon.errors import DaemonError, ExitCode, SourceFailedError, UsageError
+from dronekey.daemon.errors import ExitCode, UsageError
 from dronekey.daemon.messages import status_message
 from dronekey.daemon.outputs import OutputContext, build_outputs, close_outputs
 from dronekey.daemon.signals import SignalMonitor
@@ -131,6 +131,7 @@ class DaemonApp:
         self._pipeline_rate = RateMeter()
         self._last_processed_mono: float | None = None
         self._ready = False
+        self._stopping = False
         self._confirmed: set[int] = set()
         self._last_watchdog_mono = 0.0
         self._hang_reported = False
@@ -154,7 +155,8 @@ class DaemonApp:
                 self._prepare(*reader.resolution)
             self._capture.start()
             code = self._loop()
-            self._publish_status()  # the outputs record how it ended
+            self._stopping = True
+            self._publish_status()  # the outputs record how it ended (unhealthy: no more heartbeats)
             return code
         finally:
             self._shutdown()
@@ -176,10 +178,12 @@ class DaemonApp:
             elif capture.finished:
                 return self._end_code()
             if self._counters.consecutive_errors >= _MAX_CONSECUTIVE_PIPELINE_ERRORS:
-                raise DaemonError(
-                    f"the pipeline failed on {self._counters.consecutive_errors} frames in a row; "
-                    f"last error: {self._counters.last_error}"
+                log.error(
+                    "the pipeline failed on %d frames in a row; last error: %s",
+                    self._counters.consecutive_errors,
+                    self._counters.last_error,
                 )
+                return ExitCode.RUNTIME_FAILURE
             now = time.monotonic()
             if now >= next_status:
                 self._publish_status()
@@ -192,10 +196,10 @@ class DaemonApp:
             log.info("source ended after %d frames", self._counters.frames)
             return ExitCode.OK
         if capture.crashed:
-            raise DaemonError(f"the capture thread failed: {capture.last_error}")
-        raise SourceFailedError(
-            f"source {capture.reader.description} failed permanently: {capture.last_error}"
-        )
+            log.error("the capture thread failed: %s", capture.last_error)
+            return ExitCode.RUNTIME_FAILURE
+        log.error("source %s failed permanently: %s", capture.reader.description, capture.last_error)
+        return ExitCode.SOURCE_FAILED
 
     # ------------------------------------------------------------------------------ frames
     def _prepare(self, width: int, height: int) -> None:
@@ -296,7 +300,8 @@ class DaemonApp:
         """Frames are flowing through a working pipeline (MAVLink heartbeats follow this)."""
         last = self._last_processed_mono
         return (
-            self._pipeline is not None
+            not self._stopping
+            and self._pipeline is not None
             and self._capture.state == SourceState.STREAMING
             and self._counters.consecutive_errors == 0
             and last is not None

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from enum import IntEnum
 
-__all__ = ["EXIT_CODE_HELP", "DaemonError", "ExitCode", "SourceFailedError", "UsageError"]
+__all__ = ["EXIT_CODE_HELP", "DaemonError", "ExitCode", "UsageError"]
 
 
 class ExitCode(IntEnum):
@@ -40,9 +40,3 @@ class UsageError(DaemonError):
     """Bad command line, config, calibration, model or video: the message says what and how to fix it."""
 
     exit_code = ExitCode.USAGE
-
-
-class SourceFailedError(DaemonError):
-    """A live source gave up after its configured number of reconnection attempts."""
-
-    exit_code = ExitCode.SOURCE_FAILED
