@@ -1,0 +1,264 @@
+"""ONNX Runtime inference of the exported DroneKey network (the daemon's KeypointModel, DESIGN.md §3).
+
+rtmlib style: one class, ``KeypointModel``, with separate ``preprocess`` (BGR uint8 crops ->
+normalised RGB tensor), ``inference`` (ONNX Runtime) and ``postprocess`` (normalised crop units ->
+full-frame pixels), and ``detect`` / ``__call__`` chaining them for a frame and its crops.
+
+The input size and normalisation are read from the model's metadata (written by
+``dronekey.export``), so a model carries its own contract. torch is never imported here: the
+daemon runs without it. ``preprocess_crops`` is also what training uses, so training and serving
+see the same pixels.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+from collections.abc import Sequence
+from importlib import resources
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+import onnxruntime as ort
+import psutil
+
+from dronekey.crop import ROI, crop_square, from_normalised
+from dronekey.types import KeypointDetection
+
+__all__ = [
+    "IMAGENET_MEAN",
+    "IMAGENET_STD",
+    "INPUT_NAME",
+    "OUTPUT_NAMES",
+    "KeypointModel",
+    "ModelFormatError",
+    "RawOutputs",
+    "default_model_path",
+    "physical_cores",
+    "preprocess_crops",
+]
+
+LOG = logging.getLogger(__name__)
+
+# The ONNX contract written by dronekey.export.
+INPUT_NAME = "image"
+OUTPUT_NAMES = ("keypoints", "presence", "gate")
+# ImageNet statistics on RGB in [0, 1], as the paper's reference preprocessing.
+IMAGENET_MEAN = (0.485, 0.456, 0.406)
+IMAGENET_STD = (0.229, 0.224, 0.225)
+SHIPPED_MODEL = "dronekey_edge.onnx"
+
+
+class ModelFormatError(ValueError):
+    """The ONNX file is not a DroneKey export (missing metadata, wrong inputs); the message says what."""
+
+
+class RawOutputs(NamedTuple):
+    """The network's outputs for a batch of B crops.
+
+    keypoints : (B, K, 2) float32, normalised crop units (0 = left/top edge, 1 = right/bottom edge).
+    presence : (B,) float32, probability that the crop holds a drone.
+    gate : (B, N) float32, per-layer gate weights.
+    """
+
+    keypoints: np.ndarray
+    presence: np.ndarray
+    gate: np.ndarray
+
+
+def default_model_path() -> Path:
+    """Where the shipped edge model lives: ``dronekey/models/dronekey_edge.onnx`` (package data)."""
+    return Path(str(resources.files("dronekey") / "models" / SHIPPED_MODEL))
+
+
+def physical_cores() -> int:
+    """Physical CPU cores (ORT's best intra-op thread count); logical cores if psutil cannot tell."""
+    return psutil.cpu_count(logical=False) or os.cpu_count() or 1
+
+
+def preprocess_crops(
+    crops_bgr: np.ndarray,
+    input_size: int,
+    mean: Sequence[float] = IMAGENET_MEAN,
+    std: Sequence[float] = IMAGENET_STD,
+) -> np.ndarray:
+    """BGR uint8 crops (S, S, 3) or (B, S, S, 3) -> normalised RGB float32 tensor (B, 3, S, S).
+
+    x = (rgb / 255 - mean) / std, the normalisation of the paper's reference code (ImageNet).
+    """
+    crops = np.asarray(crops_bgr)
+    if crops.dtype != np.uint8:
+        raise ValueError(f"crops_bgr must be uint8, got dtype {crops.dtype}")
+    if crops.ndim == 3:
+        crops = crops[None]
+    if crops.ndim != 4 or crops.shape[1:] != (input_size, input_size, 3):
+        raise ValueError(
+            f"crops_bgr must have shape (S, S, 3) or (B, S, S, 3) with S = {input_size}, "
+            f"got {np.asarray(crops_bgr).shape}"
+        )
+    scale = np.float32(1.0 / 255.0) / np.asarray(std, dtype=np.float32)
+    offset = np.asarray(mean, dtype=np.float32) / np.asarray(std, dtype=np.float32)
+    rgb = crops[..., ::-1].astype(np.float32)
+    tensor = rgb * scale - offset  # (B, S, S, 3)
+    return np.ascontiguousarray(tensor.transpose(0, 3, 1, 2))
+
+
+def _session_options(threads: int) -> ort.SessionOptions:
+    options = ort.SessionOptions()
+    options.intra_op_num_threads = threads
+    options.inter_op_num_threads = 1
+    options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+    options.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+    return options
+
+
+def _metadata_json(metadata: dict[str, str], key: str, path: Path):
+    if key not in metadata:
+        raise ModelFormatError(
+            f"{path}: metadata key {key!r} missing; export the model with dronekey-export "
+            f"(present keys: {sorted(metadata)})"
+        )
+    try:
+        return json.loads(metadata[key])
+    except json.JSONDecodeError as exc:
+        raise ModelFormatError(f"{path}: metadata {key!r} is not JSON ({exc})") from None
+
+
+class KeypointModel:
+    """The DroneKey keypoint network in ONNX Runtime.
+
+    Parameters
+    ----------
+    path : str or Path, optional
+        ONNX file written by ``dronekey-export``; default ``default_model_path()`` (the shipped
+        edge model).
+    providers : sequence of str, optional
+        ONNX Runtime execution providers in priority order; default ``["CPUExecutionProvider"]``.
+        A provider this onnxruntime build lacks, or one that fails to load, is an error (no silent
+        fallback to the CPU).
+    threads : int, optional
+        Intra-op threads; default the number of physical cores.
+
+    Attributes
+    ----------
+    input_size : int
+        Side of the square network input, pixels.
+    keypoint_names : list of str
+    metadata : dict
+        The model's metadata, JSON values decoded.
+    providers : list of str
+        Execution providers in use.
+    """
+
+    def __init__(
+        self,
+        path: str | Path | None = None,
+        providers: Sequence[str] | None = None,
+        threads: int | None = None,
+    ) -> None:
+        self.path = Path(path) if path is not None else default_model_path()
+        if not self.path.is_file():
+            hint = (
+                "the shipped model is not built yet: train with `dronekey-train`, then "
+                f"`dronekey-export --checkpoint CKPT --out {self.path}`"
+                if path is None
+                else "pass the path of an ONNX file written by dronekey-export"
+            )
+            raise FileNotFoundError(f"keypoint model not found: {self.path} ({hint})")
+        requested = list(providers) if providers is not None else ["CPUExecutionProvider"]
+        available = ort.get_available_providers()
+        missing = [p for p in requested if p not in available]
+        if not requested or missing:
+            raise ValueError(
+                f"providers={requested!r}: {missing or 'empty list'} not available in this onnxruntime "
+                f"(available: {available})"
+            )
+        threads = physical_cores() if threads is None else int(threads)
+        if threads < 1:
+            raise ValueError(f"threads must be >= 1, got {threads}")
+        self.threads = threads
+        self.session = ort.InferenceSession(str(self.path), _session_options(threads), providers=requested)
+        self.providers = self.session.get_providers()
+        failed = [p for p in requested if p not in self.providers]
+        if failed:
+            raise RuntimeError(
+                f"{self.path}: execution providers {failed} failed to load (in use: {self.providers})"
+            )
+        self._check_io()
+        self.metadata = self._read_metadata()
+        size = self.metadata["input_size"]
+        if not (isinstance(size, list) and len(size) == 2 and size[0] == size[1] and int(size[0]) > 0):
+            raise ModelFormatError(f"{self.path}: input_size metadata must be [S, S], got {size!r}")
+        self.input_size = int(size[0])
+        norm = self.metadata["normalisation"]
+        if norm.get("color") != "RGB" or len(norm.get("mean", ())) != 3 or len(norm.get("std", ())) != 3:
+            raise ModelFormatError(
+                f"{self.path}: normalisation metadata must give RGB mean and std, got {norm!r}"
+            )
+        self.mean = tuple(float(v) for v in norm["mean"])
+        self.std = tuple(float(v) for v in norm["std"])
+        self.keypoint_names = list(self.metadata["keypoint_names"])
+        LOG.info(
+            "keypoint model %s (%s, %d px input) on execution providers %s, %d threads",
+            self.path.name,
+            self.metadata.get("precision", "fp32"),
+            self.input_size,
+            ", ".join(self.providers),
+            threads,
+        )
+
+    def _check_io(self) -> None:
+        inputs = [i.name for i in self.session.get_inputs()]
+        outputs = [o.name for o in self.session.get_outputs()]
+        if inputs != [INPUT_NAME] or not set(OUTPUT_NAMES) <= set(outputs):
+            raise ModelFormatError(
+                f"{self.path}: expected input {INPUT_NAME!r} and outputs {list(OUTPUT_NAMES)}, "
+                f"got inputs {inputs} and outputs {outputs}"
+            )
+
+    def _read_metadata(self) -> dict:
+        raw = dict(self.session.get_modelmeta().custom_metadata_map)
+        metadata = {}
+        for key in ("input_size", "normalisation", "keypoint_names"):
+            metadata[key] = _metadata_json(raw, key, self.path)
+        for key, value in raw.items():
+            if key not in metadata:
+                try:
+                    metadata[key] = json.loads(value)
+                except json.JSONDecodeError:
+                    metadata[key] = value
+        return metadata
+
+    def preprocess(self, crops_bgr: np.ndarray) -> np.ndarray:
+        """BGR uint8 crop(s) of ``input_size`` -> the network input (B, 3, S, S) float32."""
+        return preprocess_crops(crops_bgr, self.input_size, self.mean, self.std)
+
+    def inference(self, tensor: np.ndarray) -> RawOutputs:
+        """Run the network on a preprocessed batch (B, 3, S, S) float32."""
+        tensor = np.asarray(tensor)
+        s = self.input_size
+        if tensor.dtype != np.float32 or tensor.ndim != 4 or tensor.shape[1:] != (3, s, s):
+            raise ValueError(f"tensor must be float32 (B, 3, {s}, {s}), got {tensor.dtype} {tensor.shape}")
+        keypoints, presence, gate = self.session.run(list(OUTPUT_NAMES), {INPUT_NAME: tensor})
+        return RawOutputs(keypoints, presence, gate)
+
+    def postprocess(self, raw: RawOutputs, rois: Sequence[ROI]) -> list[KeypointDetection]:
+        """Map each crop's keypoints back to full-frame pixels through its ``roi`` (x0, y0, side)."""
+        if len(rois) != raw.keypoints.shape[0]:
+            raise ValueError(f"rois must hold one roi per crop ({raw.keypoints.shape[0]}), got {len(rois)}")
+        detections = []
+        for keypoints, presence, roi in zip(raw.keypoints, raw.presence, rois, strict=True):
+            roi = tuple(int(v) for v in roi)
+            detections.append(KeypointDetection(from_normalised(keypoints, roi), float(presence), roi))
+        return detections
+
+    def detect(self, frame_bgr: np.ndarray, rois: Sequence[ROI]) -> list[KeypointDetection]:
+        """Crop ``rois`` out of a BGR frame, run the network, return one detection per roi."""
+        if len(rois) == 0:
+            return []
+        crops = np.stack([crop_square(frame_bgr, tuple(roi), self.input_size) for roi in rois])
+        return self.postprocess(self.inference(self.preprocess(crops)), rois)
+
+    __call__ = detect
