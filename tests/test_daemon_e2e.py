@@ -193,7 +193,7 @@ def test_all_outputs_run_and_stop_cleanly(tmp_path, dialect):
     try:
         heartbeat = gcs.wait_for("HEARTBEAT", 60)
         assert (heartbeat.get_srcSystem(), heartbeat.get_srcComponent()) == (42, 191)
-        statuses = subscriber.wait_for("S", 3, 30)
+        running = list(subscriber.wait_for("S", 3, 30))
         (info,) = subscriber.wait_for("I", 1, 20)
         time.sleep(1.0)
         proc.send_signal(signal.SIGTERM)
@@ -206,7 +206,7 @@ def test_all_outputs_run_and_stop_cleanly(tmp_path, dialect):
             proc.kill()
         subscriber.close()
         gcs.close()
-    status = statuses[-1]
+    status = running[-1]
     assert status["healthy"] is True and status["source"]["state"] == "streaming"
     assert status["frames"]["processed"] > 0 and status["fps"] > 0
     assert {s["name"] for s in status["sinks"]} == {"zenoh", "mavlink", "mcap"}
@@ -223,6 +223,7 @@ def test_all_outputs_run_and_stop_cleanly(tmp_path, dialect):
         "/dronekey/status": "dronekey.Status",
     }
     assert messages["/dronekey/status"] and messages["/camera/image"] and messages["/camera/calibration"]
+    assert messages["/dronekey/status"][-1]["healthy"] is False  # the last word, written while stopping
     assert messages["/dronekey/tracks"] == []  # the untrained model never sees a drone
     assert "Traceback" not in stderr
 
