@@ -77,6 +77,15 @@ class FrameQueue:
             self._cond.notify_all()
             return True
 
+    def wait_for_room(self, stop: threading.Event) -> bool:
+        """Block until a ``put`` would not wait; False if ``stop`` was set meanwhile."""
+        with self._cond:
+            while len(self._items) >= self._maxsize:
+                if stop.is_set():
+                    return False
+                self._cond.wait(0.1)
+            return True
+
     def get(self, timeout: float) -> CapturedFrame | None:
         """The oldest frame, or None after ``timeout`` seconds without one."""
         with self._cond:
@@ -292,10 +301,12 @@ class Capture:
                 delay = pace_origin[0] + (t_ns - pace_origin[1]) / 1e9 - time.monotonic()
                 if delay > 0 and self._stop.wait(delay):
                     return
-            captured = self._accept(result, t_offset_ns)
-            last_t_ns = t_ns
-            if not self.queue.put(captured, self._stop):
+            # Back-pressure: wait for room first, so the latency origin is when the frame is handed
+            # over, not how far the decoder ran ahead of the pipeline.
+            if not self.queue.wait_for_room(self._stop):
                 return
+            last_t_ns = t_ns
+            self.queue.put(self._accept(result, t_offset_ns), self._stop)
 
     def _run_live(self) -> None:
         failures = 0
