@@ -8,7 +8,6 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
-import threading
 from pathlib import Path
 from typing import Any
 
@@ -207,8 +206,8 @@ def main(argv: list[str] | None = None) -> int:
     if getattr(args, "print_config", False):
         return ExitCode.OK
     code = _run(config, status_line)
-    if argv is None:
-        _exit_even_if_threads_linger(code)
+    if argv is None:  # the console script: everything is closed, skip interpreter finalisation
+        _exit_now(code)
     return int(code)
 
 
@@ -239,13 +238,18 @@ def _run(config, status_line) -> ExitCode:
     return code
 
 
-def _exit_even_if_threads_linger(code: int, grace_s: float = 3.0) -> None:
-    """Make sure the process ends: a library thread that is not a daemon thread must not keep it up."""
+def _exit_now(code: int) -> None:
+    """End the process once the outputs are closed, without interpreter finalisation.
+
+    Library threads still inside native code (a Zenoh session still connecting, a camera read) must
+    neither keep the process alive nor crash it while Python tears down (a daemon thread that
+    re-enters Python during finalisation is unwound with pthread_exit, which aborts through Rust or
+    C++ frames); the exit code must be the daemon's.
+    """
     from dronekey.daemon.signals import hard_exit
 
-    timer = threading.Timer(grace_s, hard_exit, args=(int(code),))
-    timer.daemon = True
-    timer.start()
+    logging.shutdown()
+    hard_exit(int(code))
 
 
 if __name__ == "__main__":
