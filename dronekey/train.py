@@ -5,7 +5,13 @@ Recipes (``--preset``):
 - ``edge`` (default): the shipped model. The edge network (``DroneKeyConfig.edge()``) on 128 px
   crops streamed from ``sim_replay.sampler`` (fresh renders every step, no files), AdamW with a
   warm-up and cosine decay, the pose-adaptive Mahalanobis loss with the paper's exponential scale
-  schedule (alpha 5, D 10). Sized to finish on two CPU cores in about two hours.
+  schedule (alpha 5, D 10) plus 4 x L1. Sized to finish on two CPU cores in about two hours.
+  Why the L1 term: trained from scratch (no ImageNet weights here), the pose-adaptive loss alone
+  leaves the network predicting the mean keypoints for hundreds of steps while S(t) is large (its
+  tolerance then spans the whole crop); an over-fitting probe on 128 crops gave a median error of
+  29 px after 150 steps with the loss alone at S = 10, 8.7 px with L1 alone and 8.2 px with
+  L1 x 4 + the loss. As S(t) shrinks, the Mahalanobis term's gradient grows (1 / sqrt(S)) and
+  dominates the refinement, which is where the paper places its benefit.
 - ``paper``: the paper's settings: ResNet-50, d 1024, N 6, 8 heads, feed-forward 2048, 224 px,
   Adam, learning rate 1e-5, batch 8, 100 epochs, alpha 5, D 10 (a GPU job).
 - ``tiny``: a minute-long smoke run for tests.
@@ -62,6 +68,7 @@ class Recipe:
     alpha: float = 5.0
     D: float = 10.0
     eps: float = 1e-4
+    l1_weight: float = 0.0  # + l1_weight x mean |pred - gt| (normalised crop units), see the edge recipe
     presence_weight: float = 0.25
     val_samples: int = 1500
     patience: int = 12
@@ -75,7 +82,15 @@ def _recipes() -> dict[str, Recipe]:
     paper = DroneKeyConfig.paper()
     tiny = replace(edge, d_model=32, num_layers=2, num_heads=2, ff_dim=64, edge_widths=(8, 16, 16, 24, 32))
     return {
-        "edge": Recipe(model=edge.to_dict(), epochs=40, samples_per_epoch=16384, batch_size=64, lr=2e-3),
+        "edge": Recipe(
+            model=edge.to_dict(),
+            epochs=30,
+            samples_per_epoch=16384,
+            batch_size=64,
+            lr=2e-3,
+            warmup_steps=100,
+            l1_weight=4.0,
+        ),
         "paper": Recipe(
             model=paper.to_dict(),
             epochs=100,
@@ -365,7 +380,10 @@ def train(args: argparse.Namespace) -> dict:
             t_sched = 100.0 * step / total_steps
             with torch.autocast("cpu", dtype=torch.bfloat16, enabled=use_bf16):
                 out_net = net(x.contiguous(memory_format=torch.channels_last))
-            loss_kp = loss_fn(out_net.keypoints.float(), kp, t_sched, present)
+            pred = out_net.keypoints.float()
+            loss_kp = loss_fn(pred, kp, t_sched, present)
+            if recipe.l1_weight and bool(present.any()):
+                loss_kp = loss_kp + recipe.l1_weight * (pred[present] - kp[present]).abs().mean()
             loss = loss_kp + recipe.presence_weight * bce(out_net.presence_logit.float(), present.float())
             opt.zero_grad(set_to_none=True)
             loss.backward()
