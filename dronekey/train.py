@@ -165,9 +165,9 @@ def _validation_set(path: Path, n: int, seed: int, crop: CropPolicy, backgrounds
     from dronekey.sim_replay.sampler import CropSampler, SamplerConfig
 
     sampler = CropSampler(SamplerConfig(crop=crop), seed=seed, backgrounds=backgrounds)
-    samples = [
-        sampler.sample() for _ in tqdm(range(n), desc="rendering validation crops", unit="crop", leave=False)
-    ]
+    quiet = not sys.stderr.isatty()  # logs get one line per epoch instead of progress bars
+    bar = tqdm(range(n), desc="rendering validation crops", unit="crop", leave=False, disable=quiet)
+    samples = [sampler.sample() for _ in bar]
     data = {
         "image": np.stack([s.image for s in samples]),
         "keypoints": np.stack([s.keypoints for s in samples]),
@@ -372,7 +372,11 @@ def train(args: argparse.Namespace) -> dict:
         net.train()
         losses, t0 = [], time.time()
         bar = tqdm(
-            range(steps_per_epoch), desc=f"epoch {epoch + 1}/{recipe.epochs}", unit="step", leave=False
+            range(steps_per_epoch),
+            desc=f"epoch {epoch + 1}/{recipe.epochs}",
+            unit="step",
+            leave=False,
+            disable=not sys.stderr.isatty(),  # logs get one line per epoch instead
         )
         for i in bar:
             x, kp, present, _area = next(batches)
