@@ -131,7 +131,8 @@ def evaluate_sequence(
         pipeline = TrackingPipeline(seq.camera, model_path, drone=spec)
         poses = pipeline.poses
     else:
-        pipeline, poses = None, PoseTracker(seq.camera, spec)
+        # The filter is told the true keypoint noise (floor 0.1 px), as a tuned deployment would be.
+        pipeline, poses = None, PoseTracker(seq.camera, spec, keypoint_sigma_px=max(oracle_noise_px, 0.1))
 
     s = {k: [] for k in ("t", "R_gt", "t_gt", "R_f", "t_f", "R_raw", "t_raw", "has_f", "has_raw")}
     kp_pred, kp_gt, areas, has_pred, scores = [], [], [], [], []
