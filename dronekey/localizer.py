@@ -149,10 +149,9 @@ class Localizer:
         small = cv2.resize(frame_bgr, (round(w * scale), round(h * scale)), interpolation=cv2.INTER_AREA)
         small = small.astype(np.float32)
         background = cv2.GaussianBlur(small, (0, 0), cfg.background_sigma)
-        contrast = np.abs(small - background).max(axis=2)
-        maps = [contrast]
+        maps = [_max_abs_difference(small, background)]
         if cfg.use_motion and self._prev_small is not None and self._prev_small.shape == small.shape:
-            maps.append(np.abs(small - self._prev_small).max(axis=2))
+            maps.append(_max_abs_difference(small, self._prev_small))
         self._prev_small = small
         blobs: list[tuple[float, Box]] = []
         for m in maps:
@@ -173,20 +172,42 @@ class Localizer:
         return rois
 
 
+def _max_abs_difference(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``np.abs(a - b).max(axis=2)`` for (H, W, 3) float32 images, bit for bit, about 20x faster
+    (numpy reduces a 3-long last axis slowly)."""
+    d = cv2.absdiff(a, b)
+    return np.maximum(np.maximum(d[..., 0], d[..., 1]), d[..., 2])
+
+
+def _median(values: np.ndarray) -> float:
+    """``float(np.median(values))`` of a finite float32 array, bit for bit, several times faster
+    (one partition instead of np.median's three-point partition and NaN check)."""
+    flat = values.ravel()
+    k = flat.size // 2
+    part = np.partition(flat, k)
+    if flat.size % 2:
+        return float(part[k])
+    return float((part[:k].max() + part[k]) / np.float32(2))  # np.median: float32 mean of the two
+
+
 def _blobs(saliency: np.ndarray, min_contrast: float) -> list[tuple[float, Box]]:
     """Connected regions of high saliency as (score, box in the map's pixels)."""
-    med = float(np.median(saliency))
-    mad = float(np.median(np.abs(saliency - med))) + 1e-3
+    med = _median(saliency)
+    mad = _median(np.abs(saliency - np.float32(med))) + 1e-3
     thr = max(min_contrast, med + 8.0 * 1.4826 * mad)
     mask = (saliency > thr).astype(np.uint8)
     mask = cv2.dilate(mask, np.ones((3, 3), np.uint8), iterations=2)
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    # Label only the box around the salient pixels (usually a small part of the map): same regions.
+    x0, y0, w0, h0 = cv2.boundingRect(mask)
+    if w0 == 0 or h0 == 0:
+        return []
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask[y0 : y0 + h0, x0 : x0 + w0], connectivity=8)
     out = []
     for i in range(1, n):
         x, y, bw, bh, area = stats[i]
         if area < 4:
             continue
-        region = saliency[y : y + bh, x : x + bw][labels[y : y + bh, x : x + bw] == i]
+        region = saliency[y0 + y : y0 + y + bh, x0 + x : x0 + x + bw][labels[y : y + bh, x : x + bw] == i]
         score = float(region.max()) * np.sqrt(float(area))
-        out.append((score, (float(x), float(y), float(bw), float(bh))))
+        out.append((score, (float(x0 + x), float(y0 + y), float(bw), float(bh))))
     return out
