@@ -63,10 +63,11 @@ PipelineFactory = Callable[[CameraModel, DaemonConfig], Pipeline]
 
 
 def default_pipeline_factory(camera: CameraModel, config: DaemonConfig) -> Pipeline:
-    """The tracking pipeline of issue 4 with the configured model and drone."""
+    """The tracking pipeline of issue 4 with the configured model, drone and inference threads."""
     from dronekey.pipeline import TrackingPipeline
 
-    return TrackingPipeline(camera, model_path=config.model.path, drone=config.model.drone)
+    m = config.model
+    return TrackingPipeline(camera, model_path=m.path, drone=m.drone, threads=m.threads)
 
 
 def _is_model_error(exc: BaseException) -> bool:
@@ -136,6 +137,11 @@ class DaemonApp:
         self._last_watchdog_mono = 0.0
         self._hang_reported = False
         self._next_journal_status = time.monotonic() + config.log.journal_status_interval_s
+
+    @property
+    def outputs(self) -> Mapping[str, SinkWorker]:
+        """The running outputs by name (their ``stats`` hold published, dropped and latency figures)."""
+        return dict(self._workers)
 
     # ------------------------------------------------------------------------------ run
     def run(self) -> ExitCode:

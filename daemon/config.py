@@ -96,6 +96,9 @@ class SourceConfig(_Section):
     )
     image_fps: float = Field(30.0, gt=0, le=1000, description="frame rate of image folders (timestamps)")
     max_frames: int | None = Field(None, gt=0, description="stop (exit 0) after this many frames")
+    decode_threads: int | None = Field(
+        None, ge=1, le=64, description="FFmpeg decoder threads (files, network); null: all cores but one"
+    )
     v4l2: V4l2Settings = Field(default_factory=V4l2Settings)
     network: NetworkSettings = Field(default_factory=NetworkSettings)
     sim: SimSettings = Field(default_factory=SimSettings)
@@ -144,6 +147,9 @@ class ModelConfig(_Section):
 
     path: FilePath | None = Field(None, description="ONNX model; null: the model shipped with the package")
     drone: str = Field("mini2", description="drone spec name (mini2, air2s) or a spec YAML path")
+    threads: int = Field(
+        1, ge=1, le=256, description="ONNX Runtime intra-op threads; 1 leaves the other cores to decoding"
+    )
 
     @field_validator("drone")
     @classmethod

@@ -65,7 +65,12 @@ def make_reader(config: SourceConfig) -> FrameReader:
 
         # The watchdog reports the stall after stall_timeout_s; the read gives up (and the capture
         # reconnects) after twice that.
-        return NetworkStreamReader(uri, config.network, read_timeout_s=2 * config.stall_timeout_s)
+        return NetworkStreamReader(
+            uri,
+            config.network,
+            read_timeout_s=2 * config.stall_timeout_s,
+            decode_threads=config.decode_threads,
+        )
     if scheme == "file":
         uri = uri[len("file://") :]
     elif scheme:
@@ -82,4 +87,4 @@ def make_reader(config: SourceConfig) -> FrameReader:
         return ImageFolderReader(path, config.image_fps)
     from dronekey.daemon.sources.opencv_readers import VideoFileReader
 
-    return VideoFileReader(path)
+    return VideoFileReader(path, decode_threads=config.decode_threads)

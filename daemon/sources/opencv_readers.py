@@ -6,6 +6,10 @@ http, tcp, udp) use the same backend with open and read timeouts, so a dead link
 to the capture thread, which reconnects. V4L2 devices get the configured size, pixel format and
 rate and say so when the driver picks something else. Live frames are stamped with the Unix time
 at which they were read (DESIGN.md §4).
+
+FFmpeg decodes files and streams on ``decode_threads`` threads, by default every core but one: the
+pipeline thread (one ONNX Runtime thread, see ``model.threads``) keeps a core of its own instead of
+fighting the decoder for every core (measurements in docs/performance.md).
 """
 
 from __future__ import annotations
@@ -24,7 +28,14 @@ from dronekey.daemon.config import NetworkSettings, V4l2Settings
 from dronekey.daemon.sources.base import FrameReader, ReadResult, SourceOpenError, valid_bgr
 from dronekey.daemon.sources.sidecar import sidecar_camera
 
-__all__ = ["NetworkStreamReader", "V4l2Reader", "VideoFileReader", "quiet_native_logs", "redact_url"]
+__all__ = [
+    "NetworkStreamReader",
+    "V4l2Reader",
+    "VideoFileReader",
+    "default_decode_threads",
+    "quiet_native_logs",
+    "redact_url",
+]
 
 log = logging.getLogger(__name__)
 
@@ -33,6 +44,16 @@ log = logging.getLogger(__name__)
 _FILE_MAX_CONSECUTIVE_FAILURES = 50
 # A live stream that fails this many reads in a row is lost (one bad packet is a corrupt frame).
 _LIVE_MAX_CONSECUTIVE_FAILURES = 3
+
+
+def default_decode_threads() -> int:
+    """FFmpeg decoder threads when not configured: every CPU this process may use but one (at least
+    one), so the pipeline thread always has a core and decoding never waits behind it."""
+    try:
+        cpus = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        cpus = os.cpu_count() or 1
+    return max(1, cpus - 1)
 
 
 def redact_url(url: str) -> str:
@@ -93,9 +114,10 @@ class VideoFileReader(_CaptureReader):
     live = False
     kind = "file"
 
-    def __init__(self, path: Path) -> None:
+    def __init__(self, path: Path, decode_threads: int | None = None) -> None:
         super().__init__()
         self.path = Path(path)
+        self.decode_threads = decode_threads or default_decode_threads()
         self.description = str(self.path)
         self._peeked: ReadResult | None = None
         self._last_t_ns: int | None = None
@@ -105,7 +127,7 @@ class VideoFileReader(_CaptureReader):
         self.close()
         if not self.path.is_file():
             raise SourceOpenError(f"video file not found: {self.path}")
-        cap = cv2.VideoCapture(str(self.path), cv2.CAP_FFMPEG)
+        cap = cv2.VideoCapture(str(self.path), cv2.CAP_FFMPEG, [cv2.CAP_PROP_N_THREADS, self.decode_threads])
         if not cap.isOpened():
             raise SourceOpenError(
                 f"cannot open {self.path} as a video: OpenCV's FFmpeg backend does not read it "
@@ -158,9 +180,12 @@ class NetworkStreamReader(_CaptureReader):
     live = True
     kind = "network"
 
-    def __init__(self, url: str, settings: NetworkSettings, read_timeout_s: float) -> None:
+    def __init__(
+        self, url: str, settings: NetworkSettings, read_timeout_s: float, decode_threads: int | None = None
+    ) -> None:
         super().__init__()
         self.url = url
+        self.decode_threads = decode_threads or default_decode_threads()
         self.description = redact_url(url)
         self._settings = settings
         self._read_timeout_ms = max(100, round(read_timeout_s * 1000))
@@ -174,6 +199,8 @@ class NetworkStreamReader(_CaptureReader):
             round(self._settings.open_timeout_s * 1000),
             cv2.CAP_PROP_READ_TIMEOUT_MSEC,
             self._read_timeout_ms,
+            cv2.CAP_PROP_N_THREADS,
+            self.decode_threads,
         ]
         cap = cv2.VideoCapture(self.url, cv2.CAP_FFMPEG, params)
         if not cap.isOpened():
