@@ -3,6 +3,10 @@
 - ``dronekey-bench model [--json]``: ONNX Runtime latency of the keypoint network, batch 1, for the
   paper configuration (random weights, exported to a temporary folder) and the shipped edge model
   (a randomly initialised one until it exists; the output says which), fp32 and int8.
+- ``dronekey-bench pipeline --source FILE [--json]``: the daemon end to end with every output on,
+  against its decode and model ceilings (``dronekey.bench_pipeline``).
+- ``dronekey-bench soak --source FILE --frames N [--json]``: the daemon looping over a video;
+  resident memory at the start and the end (``dronekey.bench_pipeline``).
 
 Adding a subcommand: write ``add_<name>_command(subparsers)`` that creates its parser and sets
 ``handler=`` to a function ``(args) -> exit status``, and append it to ``SUBCOMMANDS``. Progress goes
@@ -239,7 +243,15 @@ def add_model_command(subparsers) -> None:
 # CLI
 # --------------------------------------------------------------------------------------------------
 
-SUBCOMMANDS: list[Callable] = [add_model_command]
+
+def _add_pipeline_commands(subparsers) -> None:
+    from dronekey.bench_pipeline import add_pipeline_command, add_soak_command
+
+    add_pipeline_command(subparsers)
+    add_soak_command(subparsers)
+
+
+SUBCOMMANDS: list[Callable] = [add_model_command, _add_pipeline_commands]
 
 
 def build_parser() -> argparse.ArgumentParser:
