@@ -217,6 +217,41 @@ def test_close_finalises_a_file_with_every_channel_schema_and_count(tmp_path):
     assert first_tf["rotation"] == pytest.approx({"x": 0.3826834, "y": 0.0, "z": 0.0, "w": 0.9238795})
 
 
+def test_worker_queues_the_frame_only_for_the_images_written(tmp_path):
+    """Behind its SinkWorker the sink gets the frame only on the image grid (a backlog holds no full
+    frames) and writes the same images as when it gets every frame."""
+    from dronekey.daemon.sinks.base import SinkWorker
+
+    times = [i * FRAME_NS for i in range(75)] + [10 * FRAME_NS + i * 7_000_000 for i in range(40)]
+    img = picture()
+
+    def image_times(sink) -> list[int]:
+        sink.close()
+        (path,) = mcap_files(sink._directory)
+        return [t for t, _ in read_finalised(path)[1]["/camera/image"]]
+
+    direct = McapSink(tmp_path / "direct", camera(), "cam0", image_rate_hz=2.0)
+    for i, t in enumerate(times):
+        direct.handle_update(update(i, image=img, t0_ns=t - i * FRAME_NS))
+    queued = McapSink(tmp_path / "queued", camera(), "cam0", image_rate_hz=2.0)
+    carried = []
+    original = queued.handle_update
+
+    def spy(u):
+        carried.append(u.image is not None)
+        original(u)
+
+    queued.handle_update = spy
+    worker = SinkWorker(queued, max_queue=1000)
+    for i, t in enumerate(times):
+        worker.submit_update(update(i, image=img, t0_ns=t - i * FRAME_NS))
+    worker.close(timeout_s=10.0)
+    written = image_times(direct)
+    assert len(written) >= 4  # 2.5 s of frames, then time goes back
+    assert image_times(queued) == written
+    assert sum(carried) == len(written)
+
+
 def test_mcap_schemas_are_what_foxglove_can_parse():
     for name, schema in foxglove.FOXGLOVE_SCHEMAS.items():
         assert foxglove_parser_errors(schema) == [], name

@@ -9,6 +9,7 @@ its queue depth and its frame-to-publish latency for the status messages.
 from __future__ import annotations
 
 import collections
+import dataclasses
 import logging
 import threading
 import time
@@ -62,6 +63,14 @@ class Sink(ABC):
         """Sink-specific state for the status message (e.g. ``{"writable": False}``)."""
         return {}
 
+    def wants_image(self, t_ns: int) -> bool:
+        """Whether the update of the frame at ``t_ns`` should carry the image (default: never).
+
+        Called on the pipeline thread, once per frame and in frame order, before the update is
+        queued; updates queue without the frame otherwise, so a backlog holds no full frames.
+        """
+        return False
+
     @abstractmethod
     def close(self) -> None:
         """Flush and release everything; must return within a second or two."""
@@ -112,7 +121,9 @@ class SinkWorker:
         return len(self._queue)
 
     def submit_update(self, update: FrameUpdate) -> None:
-        """Queue a frame update; never blocks."""
+        """Queue a frame update (with its image only if the sink wants it); never blocks."""
+        if update.image is not None and not self.sink.wants_image(update.t_ns):
+            update = dataclasses.replace(update, image=None)
         self._put(("update", update))
 
     def submit_status(self, status: dict) -> None:

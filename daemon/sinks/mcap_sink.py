@@ -293,7 +293,8 @@ class McapSink(Sink):
         self._counts = dict.fromkeys(TOPICS, 0)
         self._last_frame: tuple[int, int] | None = None  # (frame t_ns, monotonic ns when it arrived)
         self._pending_status: dict | None = None
-        self._next_image_t_ns: int | None = None
+        self._images = _ImageSchedule(self._image_period_ns)  # the sink thread's: images written
+        self._offers = _ImageSchedule(self._image_period_ns)  # the pipeline thread's: images queued
         self._image_camera: CameraModel | None = None
         self._image_size: tuple[int, int] | None = None
         self._source_size_warned = False
@@ -344,6 +345,14 @@ class McapSink(Sink):
         except OSError as exc:
             self._fail(exc)
 
+    def wants_image(self, t_ns: int) -> bool:
+        """True for the frames on the image grid (``image_rate_hz`` of frame time), so the queue
+        carries a full frame only for the images that will be written."""
+        if self._closed or not self._offers.due(t_ns):
+            return False
+        self._offers.taken(t_ns)
+        return True
+
     def health(self) -> dict:
         """``writable``, ``error``, current ``file`` and its size, file and message counters."""
         rec = self._recording
@@ -380,7 +389,7 @@ class McapSink(Sink):
         for track in update.tracks:
             message = messages.track_message(track, self._camera_id, self._camera_geo)
             self._write("/dronekey/tracks", t_ns, messages.to_json_bytes(message))
-        if update.image is not None and self._image_due(t_ns):
+        if update.image is not None and self._images.due(t_ns):
             self._write_image(t_ns, update.image)
         if self._recording.last_calibration_t_ns is None or not (
             0 <= t_ns - self._recording.last_calibration_t_ns < _CALIBRATION_PERIOD_NS
@@ -392,13 +401,6 @@ class McapSink(Sink):
         transforms = foxglove.frame_transforms(t_ns, self._camera_id, update.tracks)
         if transforms["transforms"]:
             self._write("/tf", t_ns, messages.to_json_bytes(transforms))
-
-    def _image_due(self, t_ns: int) -> bool:
-        """True on the first frame at or after the next slot of the image grid (exact mean rate)."""
-        if self._image_period_ns is None:
-            return False
-        slot = self._next_image_t_ns
-        return slot is None or t_ns >= slot or t_ns < slot - 2 * self._image_period_ns  # or time went back
 
     def _write_image(self, t_ns: int, image: np.ndarray) -> None:
         height, width = image.shape[:2]
@@ -415,9 +417,7 @@ class McapSink(Sink):
             raise ValueError(f"JPEG encoding failed for an image of shape {image.shape}")
         message = foxglove.compressed_image(t_ns, self._camera_id, jpeg.tobytes())
         self._write("/camera/image", t_ns, messages.to_json_bytes(message))
-        slot, period = self._next_image_t_ns, self._image_period_ns
-        on_grid = slot is not None and 0 <= t_ns - slot < period
-        self._next_image_t_ns = slot + period if on_grid else t_ns + period
+        self._images.taken(t_ns)
 
     def _set_image_geometry(self, width: int, height: int) -> None:
         """Size of the published images for frames of ``width`` x ``height``, and their calibration."""
@@ -590,6 +590,35 @@ class McapSink(Sink):
             free = shutil.disk_usage(self._directory).free
             log.info("MCAP retention deleted %s (%.1f MB)", name, size / _MB)
         return free
+
+
+class _ImageSchedule:
+    """Which frames get an image at ``period_ns`` of frame time: the first frame at or after each
+    slot of a fixed grid (so the mean rate is exact whatever the frame rate), restarting the grid
+    when frames skip a slot or time goes back.
+
+    Parameters
+    ----------
+    period_ns : int or None
+        Grid period in ns; None: no images at all.
+    """
+
+    def __init__(self, period_ns: int | None) -> None:
+        self._period_ns = period_ns
+        self._next_t_ns: int | None = None
+
+    def due(self, t_ns: int) -> bool:
+        """True if the frame at ``t_ns`` should get an image."""
+        if self._period_ns is None:
+            return False
+        slot = self._next_t_ns
+        return slot is None or t_ns >= slot or t_ns < slot - 2 * self._period_ns  # or time went back
+
+    def taken(self, t_ns: int) -> None:
+        """The frame at ``t_ns`` got its image: move to the next slot."""
+        slot, period = self._next_t_ns, self._period_ns
+        on_grid = slot is not None and 0 <= t_ns - slot < period
+        self._next_t_ns = slot + period if on_grid else t_ns + period
 
 
 def _require(ok: bool, name: str, value, allowed: str) -> None:
