@@ -25,8 +25,10 @@ pass (ONNX Runtime's first runs, the Zenoh session opening) are left out of its 
 loops, so ``--frames`` may exceed the clip's length.
 
 ``soak`` loops the source flat out through the same daemon for ``--frames`` frames and samples the
-resident set over time; the start figure is taken after ``--warmup`` frames (arenas, queues and
-MCAP chunk buffers have reached their working size), the end figure at the last frame.
+resident set over time; the start figure is taken after ``--warmup`` frames (allocator arenas,
+queues, MCAP chunk buffers and the decoder reopened at the clip's end have reached their working
+size: one step of about 10 MiB at the first loop of a 1080p clip), the end figure at the last
+frame; ``rss_mb_per_1000_frames`` is the slope of the samples after the warm-up.
 """
 
 from __future__ import annotations
@@ -480,7 +482,7 @@ class _RssSampler:
         self._sample()
 
 
-def run_soak(setup: BenchSetup, *, frames: int, warmup: int = 500, sample_s: float = 5.0) -> dict:
+def run_soak(setup: BenchSetup, *, frames: int, warmup: int = 1000, sample_s: float = 5.0) -> dict:
     """Loop the source through the daemon for ``frames`` frames flat out; RSS over time (module docstring)."""
     setup.check()
     if frames <= warmup:
@@ -636,7 +638,10 @@ def add_soak_command(subparsers) -> None:
     _common_arguments(parser)
     parser.add_argument("--frames", type=_positive_int, required=True, help="frames to run (e.g. 20000)")
     parser.add_argument(
-        "--warmup", type=_positive_int, default=500, help="frames before the start figure (default 500)"
+        "--warmup",
+        type=_positive_int,
+        default=1000,
+        help="frames before the start figure; cover a loop of the clip (default 1000)",
     )
     parser.add_argument(
         "--sample-s", type=_positive_float, default=5.0, help="seconds between RSS samples (default 5)"
