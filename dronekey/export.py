@@ -17,9 +17,9 @@ The checkpoint is ``torch.save({"config": cfg.to_dict(), "model": state_dict, "m
 ``epochs``; others are kept under ``meta``.
 
 int8: static quantisation (QDQ, per-channel int8 weights, uint8 activations) with onnxruntime's
-tools, calibrated on real crops: an .npz file (key ``crops``, (N, S, S, 3) uint8 BGR), a callable,
-or by default the training sampler's ``dronekey.sim_replay.sampler.calibration_crops(n,
-input_size, seed)``.
+tools, calibrated on crops as the daemon sees them: an .npz file (key ``crops``, (N, S, S, 3) uint8
+BGR), a callable, or by default crops rendered by the training sampler
+(``dronekey.sim_replay.sampler.CropSampler``) with the model's crop policy.
 """
 
 from __future__ import annotations
@@ -266,28 +266,34 @@ def load_calibration_npz(path: str | Path) -> np.ndarray:
     return crops
 
 
-def calibration_crops_from_sampler(n: int, input_size: int, seed: int = 0) -> np.ndarray:
-    """Hook to the training sampler: ``dronekey.sim_replay.sampler.calibration_crops(n, input_size,
-    seed) -> (n, S, S, 3) uint8 BGR`` crops as the daemon sees them (drones and empty crops)."""
+def calibration_crops_from_sampler(
+    n: int, input_size: int, seed: int = 0, crop_policy: Mapping[str, Any] | None = None
+) -> np.ndarray:
+    """``n`` calibration crops (n, S, S, 3) uint8 BGR from the training sampler
+    (``dronekey.sim_replay.sampler.CropSampler``), framed by ``crop_policy`` (the model's, from its
+    metadata) as the daemon frames them, with the sampler's share of drone-free crops."""
     try:
-        from dronekey.sim_replay import sampler
+        from dronekey.sim_replay.sampler import CropSampler, SamplerConfig
     except ImportError as exc:
         raise ExportError(
             f"no calibration crops given and the training sampler is unavailable ({exc}); "
             "pass --calib-data FILE.npz (key 'crops', (N, S, S, 3) uint8 BGR)"
         ) from None
-    make = getattr(sampler, "calibration_crops", None)
-    if make is None:
-        raise ExportError(
-            "dronekey.sim_replay.sampler has no calibration_crops(n, input_size, seed); "
-            "pass --calib-data FILE.npz (key 'crops', (N, S, S, 3) uint8 BGR)"
-        )
-    return np.asarray(make(n, input_size, seed))
+    try:
+        policy = CropPolicy(**dict(crop_policy)) if crop_policy else CropPolicy(input_size=input_size)
+    except TypeError as exc:
+        raise ExportError(f"crop_policy metadata {dict(crop_policy)} is not a CropPolicy ({exc})") from None
+    if policy.input_size != input_size:
+        raise ExportError(f"crop_policy input_size {policy.input_size} differs from the model's {input_size}")
+    LOG.info("rendering %d calibration crops with the training sampler (seed %d)", n, seed)
+    return CropSampler(SamplerConfig(crop=policy), seed=seed).batch(n)["image"]
 
 
-def _resolve_crops(source: CalibrationSource, num_crops: int, input_size: int, seed: int) -> np.ndarray:
+def _resolve_crops(
+    source: CalibrationSource, num_crops: int, input_size: int, seed: int, crop_policy: Mapping | None
+) -> np.ndarray:
     if source is None:
-        crops = calibration_crops_from_sampler(num_crops, input_size, seed)
+        crops = calibration_crops_from_sampler(num_crops, input_size, seed, crop_policy)
     elif callable(source):
         crops = np.asarray(source(num_crops))
     else:
@@ -331,8 +337,8 @@ def quantize_int8(
     ----------
     fp32_path : path of the fp32 export (its metadata is copied, with ``precision`` = "int8").
     out : where to write the int8 model.
-    crops : (N, S, S, 3) uint8 BGR array, a callable ``n -> array``, or None for the training
-        sampler's ``calibration_crops`` (see ``calibration_crops_from_sampler``).
+    crops : (N, S, S, 3) uint8 BGR array, a callable ``n -> array``, or None to render them with
+        the training sampler (``calibration_crops_from_sampler``).
     num_crops : crops used for calibration (min-max of the activations).
     seed : for the sampler.
     """
@@ -349,7 +355,9 @@ def quantize_int8(
         raise ExportError(f"{fp32_path}: not a dronekey export (no input_size / normalisation metadata)")
     size = int(json.loads(metadata["input_size"])[0])
     norm = json.loads(metadata["normalisation"])
-    tensors = preprocess_crops(_resolve_crops(crops, num_crops, size, seed), size, norm["mean"], norm["std"])
+    policy = json.loads(metadata["crop_policy"]) if "crop_policy" in metadata else None
+    crops = _resolve_crops(crops, num_crops, size, seed, policy)
+    tensors = preprocess_crops(crops, size, norm["mean"], norm["std"])
     out.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="dronekey-int8-") as tmp:
         prepared = Path(tmp) / "prepared.onnx"

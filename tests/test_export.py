@@ -169,6 +169,11 @@ def test_int8_quantisation(onnx_path, tmp_path):
         quantize_int8(onnx_path, tmp_path / "bad.onnx", crops.astype(np.float32), num_crops=8)
 
 
+def test_int8_calibrates_on_the_training_sampler_by_default(onnx_path, tmp_path):
+    path = quantize_int8(onnx_path, tmp_path / "int8.onnx", crops=None, num_crops=4)
+    assert KeypointModel(path).metadata["precision"] == "int8"
+
+
 def _one_line_error(capsys, argv, main):
     assert main(argv) == 1
     err = capsys.readouterr().err.strip()
