@@ -76,12 +76,16 @@ def box_from_keypoints(keypoints_px: np.ndarray, spec: DroneSpec) -> Box:
 
 
 def _extent_points(spec: DroneSpec) -> np.ndarray:
-    """Points on each propeller disc's rim plus a point under the body (body frame, m)."""
+    """Points on each propeller disc's rim and the corners of a box under them that holds the body
+    and gimbal (body frame, m; dimensions from ``spec.body``, defaults from the wheelbase)."""
     r = spec.prop_diameter_m / 2
     ang = np.linspace(0, 2 * np.pi, 8, endpoint=False)
     rim = np.c_[r * np.cos(ang), r * np.sin(ang), np.zeros(8)]
     pts = [hub + rim for hub in spec.keypoints_3d]
-    pts.append(np.array([[0.0, 0.0, float(spec.body.get("height", 0.05)) * 1.5]]))
+    length = float(spec.body.get("length", 0.65 * spec.diagonal_m))
+    width = float(spec.body.get("width", 0.3 * spec.diagonal_m))
+    depth = 1.4 * float(spec.body.get("height", 0.23 * spec.diagonal_m))
+    pts.append(np.array([[sx * length / 2, sy * width / 2, depth] for sx in (-1, 1) for sy in (-1, 1)]))
     return np.vstack(pts)
 
 

@@ -1,53 +1,67 @@
-"""The localiser's fast saliency helpers give exactly what the plain numpy formulas give (they are
-speed-ups, not approximations), so acquisition picks the same candidates as before."""
+"""Localiser and pipeline plumbing: candidate search on real rendered frames, boxes, empty frames."""
 
-import cv2
 import numpy as np
 import pytest
+from daemon_media import write_untrained_model
 
-from dronekey.localizer import _blobs, _max_abs_difference, _median
+from dronekey.drone_spec import load_spec
+from dronekey.localizer import LocalizerConfig, box_from_keypoints, box_from_pose
+from dronekey.pipeline import TrackingPipeline
+from dronekey.sim_replay.presets import build_sequence, preset_camera
+from dronekey.types import Frame
 
-
-def reference_blobs(saliency, min_contrast):
-    """The original formulation: np.median, the whole map labelled."""
-    med = float(np.median(saliency))
-    mad = float(np.median(np.abs(saliency - med))) + 1e-3
-    thr = max(min_contrast, med + 8.0 * 1.4826 * mad)
-    mask = cv2.dilate((saliency > thr).astype(np.uint8), np.ones((3, 3), np.uint8), iterations=2)
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
-    out = []
-    for i in range(1, n):
-        x, y, bw, bh, area = stats[i]
-        if area < 4:
-            continue
-        region = saliency[y : y + bh, x : x + bw][labels[y : y + bh, x : x + bw] == i]
-        out.append((float(region.max()) * np.sqrt(float(area)), (float(x), float(y), float(bw), float(bh))))
-    return out
+SPEC = load_spec("mini2")
 
 
-@pytest.mark.parametrize("n", [1, 2, 7, 8, 129_600, 129_601])
-def test_median_is_numpys(n):
-    rng = np.random.default_rng(n)
-    for scale in (1e-3, 1.0, 255.0):
-        values = (rng.random(n) * scale).astype(np.float32)
-        assert _median(values) == float(np.median(values))
-        rounded = np.round(values)  # many ties
-        assert _median(rounded) == float(np.median(rounded))
+def _contains(roi, box) -> bool:
+    x0, y0, side = roi
+    x, y, w, h = box
+    return x0 <= x and y0 <= y and x + w <= x0 + side and y + h <= y0 + side
 
 
-def test_max_abs_difference_is_numpys():
+@pytest.fixture(scope="module")
+def pipeline(tmp_path_factory):
+    model = write_untrained_model(tmp_path_factory.mktemp("m") / "m.onnx")
+    return TrackingPipeline(preset_camera(), model, drone=SPEC)
+
+
+def test_box_from_pose_holds_the_rendered_drone():
+    rf = next(iter(build_sequence("seq13", seed=3, frames=1)))
+    ann = rf.record.drone
+    x, y, w, h = box_from_pose(preset_camera(), SPEC, ann.rotation, ann.translation)
+    bx, by, bw, bh = ann.bbox_xywh
+    # The projected propeller discs cover the drawn drone (up to the body hanging below).
+    assert x <= bx + 0.1 * bw and y <= by + 0.1 * bh
+    assert x + w >= bx + 0.9 * bw and y + h >= by + 0.9 * bh
+    _, _, kw, kh = box_from_keypoints(ann.keypoints_px, SPEC)
+    assert kw > np.ptp(ann.keypoints_px[:, 0]) and kh > np.ptp(ann.keypoints_px[:, 1])
+
+
+def test_behind_the_camera_has_no_box():
+    assert box_from_pose(preset_camera(), SPEC, np.eye(3), np.array([0.0, 0.0, -3.0])) is None
+
+
+@pytest.mark.parametrize("seed", [11, 12])
+def test_acquisition_candidates_include_the_drone(pipeline, seed):
+    rf = next(iter(build_sequence("seq11", seed=seed, frames=1)))
+    rois = pipeline.localizer.candidate_rois(rf.image)
+    assert 1 <= len(rois) <= LocalizerConfig().max_candidates
+    centre = np.asarray(rf.record.drone.bbox_xywh[:2]) + np.asarray(rf.record.drone.bbox_xywh[2:]) / 2
+    assert any(x0 <= centre[0] <= x0 + s and y0 <= centre[1] <= y0 + s for x0, y0, s in rois)
+
+
+def test_empty_sky_gives_no_candidate_and_no_track(pipeline):
+    sky = np.empty((1080, 1920, 3), np.uint8)
+    sky[:] = np.linspace(200, 150, 1080, dtype=np.uint8)[:, None, None]  # a smooth gradient
     rng = np.random.default_rng(0)
-    a = (rng.random((270, 480, 3)) * 255).astype(np.float32)
-    b = cv2.GaussianBlur(a, (0, 0), 6.0)
-    assert np.array_equal(_max_abs_difference(a, b), np.abs(a - b).max(axis=2))
+    for i in range(3):
+        noisy = np.clip(sky + rng.normal(0, 2, sky.shape), 0, 255).astype(np.uint8)
+        out = pipeline.process(Frame(i, i * 33_333_333, noisy))
+        assert out.detection is None and out.tracks == () and out.mode == "none"
 
 
-def test_blobs_are_the_reference_blobs():
-    rng = np.random.default_rng(1)
-    for k in range(50):
-        saliency = (rng.random((270, 480)) ** (4 + k % 8) * 120).astype(np.float32)
-        assert _blobs(saliency, 12.0) == reference_blobs(saliency, 12.0)
-    assert _blobs(np.zeros((64, 64), np.float32), 12.0) == []
-    corners = np.zeros((64, 64), np.float32)
-    corners[:3, :3] = corners[-3:, -3:] = 50.0
-    assert _blobs(corners, 12.0) == reference_blobs(corners, 12.0)
+def test_frame_of_the_wrong_size_is_refused(pipeline):
+    from dronekey.camera import CalibrationError
+
+    with pytest.raises(CalibrationError, match="960x540"):
+        pipeline.process(Frame(0, 0, np.zeros((540, 960, 3), np.uint8)))
