@@ -24,6 +24,9 @@ over all passes (MiB, as every ``*_mb`` figure here). The first ``--warmup`` fra
 pass (ONNX Runtime's first runs, the Zenoh session opening) are left out of its figures. The source
 loops, so ``--frames`` may exceed the clip's length.
 
+SIGINT / SIGTERM stop either command the daemon's way (outputs closed, temporary folder removed,
+exit status 130 / 143); an interrupted soak still prints its figures up to the last 100 frames.
+
 ``soak`` loops the source flat out through the same daemon for ``--frames`` frames and samples the
 resident set over time; the start figure is taken after ``--warmup`` frames (allocator arenas,
 queues, MCAP chunk buffers and the decoder reopened at the clip's end have reached their working
@@ -47,6 +50,7 @@ import time
 from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import psutil
@@ -104,11 +108,21 @@ class _UdpDrain:
         self._sock.close()
 
 
+class _Stamp(NamedTuple):
+    """Where a run stood: frames processed, wall clock (s), process CPU time (s), resident set (MiB)."""
+
+    frames: int
+    wall_s: float
+    cpu_s: float
+    rss_mb: float
+
+
 class _Meter:
     """The daemon's pipeline behind a pipeline factory that counts frames and stamps a window.
 
-    ``process`` forwards to ``TrackingPipeline.process`` and records, after frame ``warmup`` and after
-    the last frame, the wall clock, the process CPU time and (with ``rss``) the resident set.
+    ``process`` forwards to ``TrackingPipeline.process`` and stamps (``_Stamp``) the end of frame
+    ``warmup`` (``start``) and of the last frame (``end``); with ``rss`` the stamps hold the resident
+    set and every 100th frame is stamped too (``last``, what an interrupted soak reports).
     """
 
     def __init__(self, frames: int, warmup: int, desc: str, rss: bool = False) -> None:
@@ -116,12 +130,13 @@ class _Meter:
         self.warmup = warmup
         self.frames = 0
         self.modes: Counter[str] = Counter()
-        self.start: tuple[float, float, float] | None = None  # (perf_counter s, cpu s, rss MiB)
-        self.end: tuple[float, float, float] | None = None
+        self.start: _Stamp | None = None
+        self.end: _Stamp | None = None
+        self.last: _Stamp | None = None
         self.pipeline = None
         self._rss = rss
         self._process = psutil.Process()
-        self._bar = tqdm(total=frames, desc=desc, unit="frame", file=sys.stderr, leave=False, disable=None)
+        self._bar = tqdm(total=frames, desc=desc, unit="frame", file=sys.stderr, leave=False)
 
     def factory(self, camera, config):
         """``DaemonApp``'s pipeline factory: the daemon's default pipeline, metered."""
@@ -141,21 +156,27 @@ class _Meter:
             self.start = self._stamp()
         if self.frames == self.total:
             self.end = self._stamp()
+        elif self._rss and self.frames % 100 == 0:
+            self.last = self._stamp()
         self._bar.update(1)
         return output
 
-    def _stamp(self) -> tuple[float, float, float]:
+    def _stamp(self) -> _Stamp:
         rss = self._process.memory_info().rss / _MIB if self._rss else math.nan
-        return time.perf_counter(), time.process_time(), rss
+        return _Stamp(self.frames, time.perf_counter(), time.process_time(), rss)
 
     def close(self) -> None:
         self._bar.close()
 
     def window(self) -> tuple[int, float, float]:
-        """Frames, wall seconds and CPU seconds between the end of warm-up and the last frame."""
+        """Frames, wall seconds and CPU seconds from the end of warm-up to ``end``."""
         if self.start is None or self.end is None:
             raise BenchError(f"the daemon stopped after {self.frames} of {self.total} frames")
-        return self.total - self.warmup, self.end[0] - self.start[0], self.end[1] - self.start[1]
+        return (
+            self.end.frames - self.start.frames,
+            self.end.wall_s - self.start.wall_s,
+            self.end.cpu_s - self.start.cpu_s,
+        )
 
 
 @dataclass(frozen=True)
@@ -230,18 +251,42 @@ class BenchSetup:
             raise BenchError(str(exc).splitlines()[0]) from None
 
 
-def _run_daemon(config, meter: _Meter):
-    """Run ``DaemonApp`` to its end with ``meter`` as the pipeline; returns the app (for its outputs)."""
+class BenchInterruptedError(BenchError):
+    """SIGINT or SIGTERM stopped the run; ``exit_code`` is 130 or 143 (as for the daemon)."""
+
+    def __init__(self, message: str, exit_code: int) -> None:
+        super().__init__(message)
+        self.exit_code = exit_code
+
+
+def _signal_monitor(install: bool = False):
+    """The daemon's SIGINT / SIGTERM handling for a whole command (installed from the main thread)."""
+    from dronekey.daemon.signals import SignalMonitor
+
+    signals = SignalMonitor(deadline_s=30.0)
+    if install:
+        signals.install()
+    return signals
+
+
+def _check_signals(signals, frames: int) -> None:
+    if signals.exit_code is not None:
+        name = signals.exit_code.name
+        raise BenchInterruptedError(f"stopped by {name} after {frames} frames", int(signals.exit_code))
+
+
+def _run_daemon(config, meter: _Meter, signals):
+    """Run ``DaemonApp`` to its end with ``meter`` as the pipeline; returns the app (for its outputs).
+
+    A signal seen by ``signals`` (``SignalMonitor``) stops it the daemon's way (outputs closed) and
+    raises ``BenchInterruptedError``.
+    """
     from dronekey.daemon.app import DaemonApp
     from dronekey.daemon.errors import DaemonError, ExitCode
-    from dronekey.daemon.signals import SignalMonitor
     from dronekey.daemon.systemd import SystemdNotifier
 
     app = DaemonApp(
-        config,
-        signals=SignalMonitor(),
-        notifier=SystemdNotifier(environ={}),
-        pipeline_factory=meter.factory,
+        config, signals=signals, notifier=SystemdNotifier(environ={}), pipeline_factory=meter.factory
     )
     try:
         code = app.run()
@@ -249,6 +294,7 @@ def _run_daemon(config, meter: _Meter):
         raise BenchError(str(exc)) from None
     finally:
         meter.close()
+    _check_signals(signals, meter.frames)
     if code != ExitCode.OK:
         raise BenchError(
             f"the daemon stopped with exit code {int(code)} ({code.name}) after {meter.frames} frames"
@@ -283,7 +329,7 @@ def _peak_rss_mb() -> float:
 # --------------------------------------------------------------------------------------------------
 
 
-def measure_decode(setup: BenchSetup, frames: int) -> tuple[float, object]:
+def measure_decode(setup: BenchSetup, frames: int, signals=None) -> tuple[float, object]:
     """Frames per second of the daemon's reader for the source alone (same settings, flat out,
     looping), and the reader (closed: its resolution and decoder threads)."""
     from dronekey.daemon.sources import SourceOpenError, make_reader
@@ -296,10 +342,10 @@ def measure_decode(setup: BenchSetup, frames: int) -> tuple[float, object]:
     try:
         done = 0
         start = time.perf_counter()
-        with tqdm(
-            total=frames, desc="decode", unit="frame", file=sys.stderr, leave=False, disable=None
-        ) as bar:
+        with tqdm(total=frames, desc="decode", unit="frame", file=sys.stderr, leave=False) as bar:
             while done < frames:
+                if signals is not None:
+                    _check_signals(signals, done)
                 result = reader.read()
                 if result.bgr is None:
                     if done == 0 or not result.ended:
@@ -346,8 +392,12 @@ def run_pipeline_bench(
     latency_frames: int = 300,
     warmup: int = 30,
     model_runs: int = 500,
+    signals=None,
 ) -> dict:
-    """The four passes of ``dronekey-bench pipeline`` (module docstring); returns the report."""
+    """The four passes of ``dronekey-bench pipeline`` (module docstring); returns the report.
+
+    ``signals``: the command's ``SignalMonitor`` (default: a fresh one, not installed).
+    """
     from dronekey.bench import time_model
 
     setup.check()
@@ -358,19 +408,20 @@ def run_pipeline_bench(
         raise BenchError(f"--latency-frames must be <= {_MAX_LATENCY_FRAMES}, got {latency_frames}")
 
     LOG.info("decode pass: %d frames", frames)
-    decode_fps, reader = measure_decode(setup, frames)
+    signals = signals or _signal_monitor()
+    decode_fps, reader = measure_decode(setup, frames, signals)
 
     LOG.info("flat-out pass: %d frames", frames)
     flat = _Meter(frames, warmup, "flat out")
     with _local_endpoints() as outputs:
-        flat_app = _run_daemon(setup.config(frames, outputs), flat)
+        flat_app = _run_daemon(setup.config(frames, outputs), flat, signals)
     n, wall_s, cpu_s = flat.window()
     fps = n / wall_s
 
     LOG.info("paced pass: %d frames at the clip's frame rate", latency_frames)
     paced = _Meter(latency_frames, warmup, "paced")
     with _local_endpoints() as outputs:
-        paced_app = _run_daemon(setup.config(latency_frames, outputs, realtime=True), paced)
+        paced_app = _run_daemon(setup.config(latency_frames, outputs, realtime=True), paced, signals)
     p50, p99, per_sink = _latency(paced_app, warmup)
     pn, pwall_s, pcpu_s = paced.window()
 
@@ -433,13 +484,20 @@ def _setup(args: argparse.Namespace) -> BenchSetup:
 
 def _run_pipeline_command(args: argparse.Namespace) -> int:
     _quiet_native_logs()
+    signals = _signal_monitor(install=True)
     try:
         report = run_pipeline_bench(
-            _setup(args), frames=args.frames, latency_frames=args.latency_frames, warmup=args.warmup
+            _setup(args),
+            frames=args.frames,
+            latency_frames=args.latency_frames,
+            warmup=args.warmup,
+            signals=signals,
         )
     except BenchError as exc:
         print(f"dronekey-bench pipeline: error: {exc}", file=sys.stderr)
-        return 1
+        return exc.exit_code if isinstance(exc, BenchInterruptedError) else 1
+    finally:
+        signals.finished()
     print(json.dumps(report, indent=2) if args.json else _pipeline_table(report))
     return 0
 
@@ -482,20 +540,33 @@ class _RssSampler:
         self._sample()
 
 
-def run_soak(setup: BenchSetup, *, frames: int, warmup: int = 1000, sample_s: float = 5.0) -> dict:
-    """Loop the source through the daemon for ``frames`` frames flat out; RSS over time (module docstring)."""
+def run_soak(
+    setup: BenchSetup, *, frames: int, warmup: int = 1000, sample_s: float = 5.0, signals=None
+) -> dict:
+    """Loop the source through the daemon for ``frames`` frames flat out; RSS over time (module
+    docstring). ``signals``: the command's ``SignalMonitor`` (default: a fresh one, not installed)."""
     setup.check()
+    signals = signals or _signal_monitor()
     if frames <= warmup:
         raise BenchError(f"--frames ({frames}) must exceed --warmup ({warmup})")
     meter = _Meter(frames, warmup, "soak", rss=True)
     sampler = _RssSampler(meter, sample_s)
+    interrupted: BenchInterruptedError | None = None
+    outputs_stats = {}
     try:
         with _local_endpoints() as outputs:
-            app = _run_daemon(setup.config(frames, outputs), meter)
+            try:
+                app = _run_daemon(setup.config(frames, outputs), meter, signals)
+                outputs_stats = app.outputs
+            except BenchInterruptedError as exc:
+                if meter.last is None or meter.start is None or meter.last.frames <= meter.start.frames:
+                    raise
+                interrupted = exc
+                meter.end = meter.last  # report the frames done so far
     finally:
         sampler.close()
     n, wall_s, cpu_s = meter.window()
-    start_mb, end_mb = meter.start[2], meter.end[2]
+    start_mb, end_mb = meter.start.rss_mb, meter.end.rss_mb
     tail = [s for s in sampler.samples if s["frames"] >= warmup]
     slope = (
         float(np.polyfit([s["frames"] for s in tail], [s["rss_mb"] for s in tail], 1)[0]) * 1000
@@ -503,7 +574,9 @@ def run_soak(setup: BenchSetup, *, frames: int, warmup: int = 1000, sample_s: fl
         else math.nan
     )
     return {
-        "frames": frames,
+        "frames": meter.end.frames,
+        "stopped_early": None if interrupted is None else str(interrupted),
+        "exit_code": 0 if interrupted is None else interrupted.exit_code,
         "warmup_frames": warmup,
         "seconds": round(sampler.samples[-1]["t_s"], 1),
         "fps": round(n / wall_s, 2),
@@ -515,7 +588,7 @@ def run_soak(setup: BenchSetup, *, frames: int, warmup: int = 1000, sample_s: fl
         "rss_mb_peak": round(_peak_rss_mb(), 1),
         "outputs": {
             name: {"published": w.stats.published, "dropped": w.stats.dropped, "errors": w.stats.errors}
-            for name, w in app.outputs.items()
+            for name, w in outputs_stats.items()
         },
         "samples": sampler.samples,
     }
@@ -523,26 +596,26 @@ def run_soak(setup: BenchSetup, *, frames: int, warmup: int = 1000, sample_s: fl
 
 def _run_soak_command(args: argparse.Namespace) -> int:
     _quiet_native_logs()
+    signals = _signal_monitor(install=True)
     try:
-        report = run_soak(_setup(args), frames=args.frames, warmup=args.warmup, sample_s=args.sample_s)
+        report = run_soak(
+            _setup(args), frames=args.frames, warmup=args.warmup, sample_s=args.sample_s, signals=signals
+        )
     except BenchError as exc:
         print(f"dronekey-bench soak: error: {exc}", file=sys.stderr)
-        return 1
+        return exc.exit_code if isinstance(exc, BenchInterruptedError) else 1
+    finally:
+        signals.finished()
     report["max_growth_percent"] = args.max_growth
     report["ok"] = report["rss_growth_percent"] <= args.max_growth
     if args.json:
         print(json.dumps(report, indent=2))
     else:
-        for key in (
-            "frames",
-            "seconds",
-            "fps",
-            "rss_mb_start",
-            "rss_mb_end",
-            "rss_growth_percent",
-            "rss_mb_peak",
-        ):
-            print(f"{key:20s} {report[key]}")
+        keys = ("frames", "seconds", "fps", "rss_mb_start", "rss_mb_end", "rss_growth_percent", "rss_mb_peak")
+        print("\n".join(f"{key:20s} {report[key]}" for key in keys))
+    if report["stopped_early"]:
+        print(f"dronekey-bench soak: {report['stopped_early']} (figures up to there)", file=sys.stderr)
+        return report["exit_code"]
     if not report["ok"]:
         print(
             f"dronekey-bench soak: RSS grew {report['rss_growth_percent']:.2f}% (> {args.max_growth}%)",
