@@ -77,6 +77,15 @@ class DroneKeyConfig:
     token_stride : {32, 16}
         Backbone output stride. 32 is the paper's H/32 grid; 16 (edge backbone only) is a documented
         deviation that gives four times as many tokens.
+    token_norm : bool
+        LayerNorm the projected tokens before the positional encoding is added (not in the paper;
+        see ``pe_scale``).
+    pe_scale : float
+        Amplitude of the sine encoding (the paper's PE has amplitude 1). Trained from scratch, the
+        network has to learn where the propellers are from the encoding alone (the IR is a mean over
+        tokens); when the projected tokens are much larger than the encoding, the position signal
+        is drowned and training sits on the "predict the mean keypoints" plateau. Normalised tokens
+        plus a stronger encoding escape it sooner (docs/model.md).
     edge_widths : tuple of 5 ints
         Edge backbone channels: stem and four stages.
     edge_depths : tuple of 4 ints
@@ -93,6 +102,8 @@ class DroneKeyConfig:
     activation: str = "relu"
     num_keypoints: int = 4
     token_stride: int = 32
+    token_norm: bool = False
+    pe_scale: float = 1.0
     edge_widths: tuple[int, ...] = field(default=(32, 64, 96, 160, 256))
     edge_depths: tuple[int, ...] = field(default=(1, 2, 2, 2))
 
@@ -121,6 +132,8 @@ class DroneKeyConfig:
             )
         if not 0.0 <= self.dropout < 1.0:
             raise ValueError(f"dropout must be in [0, 1), got {self.dropout}")
+        if not self.pe_scale > 0:
+            raise ValueError(f"pe_scale must be > 0, got {self.pe_scale}")
 
     @property
     def grid_size(self) -> int:
@@ -144,8 +157,10 @@ class DroneKeyConfig:
     @classmethod
     def edge(cls) -> DroneKeyConfig:
         """Our 2-core CPU configuration: edge backbone, 128 px input (4 x 4 tokens), d = 192,
-        N = 4, 4 heads, feed-forward 384; dropout 0 (trained on an endless stream of rendered crops)."""
-        return cls()
+        N = 4, 4 heads, feed-forward 384; dropout 0 (trained on an endless stream of rendered crops);
+        normalised tokens and a sine encoding of amplitude 10 (``token_norm``, ``pe_scale``).
+        The dataclass defaults are the paper's choices, so older checkpoints load unchanged."""
+        return cls(token_norm=True, pe_scale=10.0)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON-able dict (tuples as lists)."""
@@ -214,8 +229,11 @@ class DroneKeyNet(nn.Module):
         else:
             self.backbone = EdgeBackbone(config.edge_widths, config.edge_depths, config.token_stride)
         self.projection = nn.Conv2d(self.backbone.out_channels, d, kernel_size=1)
+        self.token_norm = nn.LayerNorm(d) if config.token_norm else nn.Identity()
         self.register_buffer(
-            "positional_encoding", sine_positional_encoding_2d(config.grid_size, d), persistent=False
+            "positional_encoding",
+            config.pe_scale * sine_positional_encoding_2d(config.grid_size, d),
+            persistent=False,
         )
         # A ModuleList of N layers, not nn.TransformerEncoder: we need every layer's output, and the
         # reference's extra template layer (the paper's 84.41 M) would be dead weight.
@@ -249,7 +267,7 @@ class DroneKeyNet(nn.Module):
         if x.dim() != 4 or tuple(x.shape[1:]) != (3, s, s):
             raise ValueError(f"x must have shape (B, 3, {s}, {s}), got {tuple(x.shape)}")
         features = self.projection(self.backbone(x))  # (B, d, S/32, S/32)
-        tokens = features.flatten(2).transpose(1, 2) + self.positional_encoding  # (B, P, d)
+        tokens = self.token_norm(features.flatten(2).transpose(1, 2)) + self.positional_encoding  # (B, P, d)
         representations = []
         for layer in self.layers:
             tokens = _encoder_layer_forward(layer, tokens)
