@@ -16,6 +16,7 @@ to stderr; results (a table, or JSON with ``--json``) to stdout.
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import logging
 import platform
@@ -120,9 +121,7 @@ def _run_model_command(args: argparse.Namespace) -> int:
             else:
                 to_export.append(name)
         if to_export:
-            try:
-                import torch  # noqa: F401  (only to fail early with a clear message)
-            except ImportError:
+            if importlib.util.find_spec("torch") is None:  # not imported: torch stays out of this process
                 print(
                     "dronekey-bench model: error: exporting random-weight models needs torch "
                     "(pip install 'dronekey[train]')",

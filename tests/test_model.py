@@ -29,6 +29,7 @@ TINY = DroneKeyConfig(
     edge_depths=(1, 1, 1, 1),
 )
 # The paper's head and trunk on a small input, so a backward pass through ResNet-50 stays fast.
+TINY_NORMED = DroneKeyConfig(**{**TINY.to_dict(), "token_norm": True, "pe_scale": 10.0})  # as edge()
 TINY_RESNET = DroneKeyConfig(
     backbone="resnet50", input_size=64, d_model=64, num_layers=2, num_heads=4, ff_dim=64
 )
@@ -62,7 +63,7 @@ def test_output_shapes_and_predictions_start_inside_the_crop(config):
     assert out.keypoints.min() > 0.2 and out.keypoints.max() < 0.8
 
 
-@pytest.mark.parametrize("config", [TINY, TINY_RESNET], ids=["edge", "resnet"])
+@pytest.mark.parametrize("config", [TINY, TINY_NORMED, TINY_RESNET], ids=["edge", "edge-normed", "resnet"])
 def test_gradients_reach_every_parameter_at_initialisation(config):
     torch.manual_seed(0)
     net = DroneKeyNet(config).train()
@@ -123,6 +124,7 @@ def test_config_round_trip_and_presets():
         ({"token_stride": 8}, "token_stride"),
         ({"backbone": "resnet50", "token_stride": 16}, "token_stride"),
         ({"dropout": 1.5}, "dropout"),
+        ({"pe_scale": 0.0}, "pe_scale"),
     ],
 )
 def test_bad_config_errors_name_the_field(changes, message):
