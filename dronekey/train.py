@@ -437,6 +437,7 @@ def train(args: argparse.Namespace) -> dict:
         improved = metrics["ap_kp"] > best_ap
         meta = {
             "trained_on": args.data_description,
+            "drone_spec": "mini2",  # the daemon's default drone; the renders mix Mini 2 and Air 2S
             "recipe": args.preset,
             "epochs": epoch + 1,
             "figures": {k: round(v, 3) for k, v in metrics.items() if k != "gate"},
