@@ -74,6 +74,7 @@ class Recipe:
     symmetric_weight: float = 0.0  # + w x (1 - progress / symmetric_until) x order-free L1, see below
     symmetric_until: float = 0.25
     presence_weight: float = 0.25
+    presence_steps: int = 0  # head-only presence steps on the best network after the epochs, see below
     val_samples: int = 1500
     patience: int = 12
     crop: dict = field(default_factory=lambda: asdict(CropPolicy()))
@@ -95,6 +96,7 @@ def _recipes() -> dict[str, Recipe]:
             warmup_steps=100,
             l1_weight=4.0,
             symmetric_weight=4.0,
+            presence_steps=300,
         ),
         "paper": Recipe(
             model=paper.to_dict(),
@@ -325,7 +327,8 @@ def train(args: argparse.Namespace) -> dict:
     if args.resume and last_path.is_file() and state_path.is_file():
         net, meta = load_checkpoint(last_path)
         state = torch.load(state_path, weights_only=False)
-        recipe = replace(Recipe(**state["recipe"]), **overrides)  # e.g. more --epochs to extend a run
+        # Keys a newer version added come from the preset; overrides, e.g. more --epochs, extend a run.
+        recipe = replace(Recipe(**{**asdict(recipe), **state["recipe"]}), **overrides)
         start_epoch, history, best_ap = state["epoch"] + 1, state["history"], state["best_ap"]
         log.info("resuming %s at epoch %d (best AP %.2f)", out, start_epoch, best_ap)
     else:
@@ -482,6 +485,21 @@ def train(args: argparse.Namespace) -> dict:
         if stale >= recipe.patience:
             log.info("no AP improvement for %d epochs: stopping early", stale)
             break
+    if recipe.presence_steps and best_path.is_file():
+        best, meta = load_checkpoint(best_path)
+        fit_presence_head(best, batches, recipe.presence_steps)
+        metrics = evaluate(best, val)
+        meta["figures"] = {k: round(v, 3) for k, v in metrics.items() if k != "gate"}
+        meta["presence_steps"] = recipe.presence_steps
+        save_checkpoint(best_path, best, meta)
+        best_ap = metrics["ap_kp"]
+        log.info(
+            "presence head refit (%d steps): AP %.2f SR90 %.2f AUC %.2f",
+            recipe.presence_steps,
+            metrics["ap_kp"],
+            metrics["sr90"],
+            metrics["presence_auc"],
+        )
     log.info(
         "done in %.1f min; best AP %.2f; checkpoints %s, %s",
         (time.time() - t_start) / 60,
@@ -490,6 +508,41 @@ def train(args: argparse.Namespace) -> dict:
         last_path,
     )
     return {"best_ap": best_ap, "history": history}
+
+
+def fit_presence_head(net, batches, steps: int, lr: float = 3e-3) -> None:
+    """Refit the presence head alone, on the frozen network, reading the projected tokens.
+
+    Why a separate stage: trained jointly, the presence term is a small share of the loss and, with
+    the head on the last IR, sees an input that hardly varies across crops (``DroneKeyConfig``,
+    ``presence_input``); the keypoint epochs ended with the presence probability equal to the share
+    of drone crops everywhere (AUC < 50 %). The head is a linear map of d features: a few hundred
+    steps fit it, and nothing else in the network changes. ``net.config`` is switched to
+    ``presence_input="tokens"`` so that the checkpoint and its ONNX export compute what was fitted.
+    """
+    import torch
+
+    if net.config.presence_input != "tokens":
+        log.info(
+            "presence head: switching its input from %s to the projected tokens", net.config.presence_input
+        )
+        net.config = replace(net.config, presence_input="tokens")
+    net.eval()  # BatchNorm running statistics, as at inference
+    head = net.presence
+    torch.nn.init.zeros_(head.weight)
+    torch.nn.init.zeros_(head.bias)
+    opt = torch.optim.Adam(head.parameters(), lr=lr)
+    bce = torch.nn.BCEWithLogitsLoss()
+    from tqdm import tqdm
+
+    for _ in tqdm(range(steps), desc="presence head", unit="step", disable=not sys.stderr.isatty()):
+        x, _kp, present, _area = next(batches)
+        with torch.no_grad():
+            features = net.projection(net.backbone(x)).flatten(2).mean(dim=2)  # (B, d), as forward()
+        loss = bce(head(features).squeeze(-1), present.float())
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
 
 
 def _cpu_has_bf16() -> bool:

@@ -52,3 +52,35 @@ def test_bad_arguments_are_one_line_errors(args, tmp_path, capsys):
     assert exc.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err[-1].startswith("dronekey-train: error:")
+
+
+def test_presence_head_refit_changes_only_the_head_and_switches_its_input():
+    """The presence stage: the head learns drone vs empty crops from the projected tokens; every
+    other weight stays as it was, and the config says what the head now reads."""
+    import itertools
+
+    import numpy as np
+    import torch
+
+    from dronekey.model import DroneKeyConfig, DroneKeyNet
+    from dronekey.runtime import IMAGENET_MEAN, IMAGENET_STD, preprocess_crops
+    from dronekey.train import fit_presence_head
+
+    torch.manual_seed(0)
+    config = DroneKeyConfig(d_model=32, num_layers=2, num_heads=2, ff_dim=64, edge_widths=(8, 16, 16, 24, 32))
+    net = DroneKeyNet(config)
+    before = {k: v.clone() for k, v in net.state_dict().items()}
+    rng = np.random.default_rng(0)
+    # Separable toy data: "drone" crops are bright, empty ones dark.
+    present = np.arange(16) % 2 == 0
+    images = np.where(present[:, None, None, None], 200, 40) + rng.integers(0, 30, (16, 128, 128, 3))
+    x = torch.from_numpy(preprocess_crops(images.astype(np.uint8), 128, IMAGENET_MEAN, IMAGENET_STD))
+    batch = (x, torch.zeros(16, 4, 2), torch.from_numpy(present), torch.zeros(16))
+    fit_presence_head(net, itertools.repeat(batch), steps=60, lr=5e-2)
+    assert net.config.presence_input == "tokens"
+    with torch.no_grad():
+        p = torch.sigmoid(net(x).presence_logit).numpy()
+    assert p[present].min() > p[~present].max()
+    after = net.state_dict()
+    changed = sorted(k for k in before if not torch.equal(before[k], after[k]))
+    assert changed == ["presence.bias", "presence.weight"]
