@@ -18,6 +18,17 @@ Recipes (``--preset``):
   Adam, learning rate 1e-5, batch 8, 100 epochs, alpha 5, D 10 (a GPU job).
 - ``tiny``: a minute-long smoke run for tests.
 
+Data. By default every step draws fresh rendered crops (``sim_replay.sampler``, ``--backgrounds``
+mixes photos in). ``--coco PATH`` trains on a COCO keypoint dataset instead (the real 2DroneKey,
+or sequences of ours written with ``dronekey-sim --images``): ``dronekey.coco_crops`` cuts the same
+jittered crops around the annotated boxes, plus drone-free crops and left/right mirrors; a folder's
+JSONs named *train* / *val* are the splits.
+
+Presence stage. After the epochs, the best network's presence head is refit alone for
+``presence_steps`` steps on the frozen network (``fit_presence_head``): with the edge encoder the
+last layer's IR hardly varies between crops, so the head reads the projected-token mean instead
+(``DroneKeyConfig.presence_input``), and a linear head on fixed features needs no more than that.
+
 Schedule time. The paper's S(t) = D exp(-0.01 alpha t) runs over t = 0..100 epochs. A recipe with
 another number of epochs follows the same curve over its whole run: the loss is evaluated at
 ``t = 100 * progress`` (progress = step / total steps), so S goes from 10 to 0.067 in every recipe.
@@ -43,6 +54,7 @@ from pathlib import Path
 
 import numpy as np
 
+from dronekey.coco_crops import CocoDataError
 from dronekey.crop import CropPolicy
 from dronekey.runtime import IMAGENET_MEAN, IMAGENET_STD, preprocess_crops
 
@@ -123,34 +135,51 @@ def _recipes() -> dict[str, Recipe]:
 
 
 # ----------------------------------------------------------------------------- data
-class _StreamDataset:
-    """Infinite stream of rendered crops for a torch DataLoader; each worker has its own seed."""
+class _CropSource:
+    """Where the crops come from: the renderer (default) or a COCO keypoint dataset (``--coco``).
 
-    def __init__(self, seed: int, crop: CropPolicy, backgrounds: str | None) -> None:
-        self.seed, self.crop, self.backgrounds = seed, crop, backgrounds
+    Picklable and cheap: each DataLoader worker builds its own sampler from it.
+    """
+
+    def __init__(self, crop: CropPolicy, backgrounds: str | None = None, coco_images: list | None = None):
+        self.crop, self.backgrounds, self.coco_images = crop, backgrounds, coco_images
+
+    def sampler(self, seed: int):
+        """A sampler with ``sample() -> CropSample``, reproducible for ``seed``."""
+        if self.coco_images is not None:
+            from dronekey.coco_crops import CocoCropSampler
+
+            return CocoCropSampler(self.coco_images, self.crop, seed=seed)
+        from dronekey.sim_replay.sampler import CropSampler, SamplerConfig
+
+        return CropSampler(SamplerConfig(crop=self.crop), seed=seed, backgrounds=self.backgrounds)
+
+
+class _StreamDataset:
+    """Infinite stream of crops for a torch DataLoader; each worker has its own seed."""
+
+    def __init__(self, seed: int, source: _CropSource) -> None:
+        self.seed, self.source = seed, source
 
     def __iter__(self):
         import torch
 
-        from dronekey.sim_replay.sampler import CropSampler, SamplerConfig
-
         info = torch.utils.data.get_worker_info()
         wid = info.id if info is not None else 0
-        sampler = CropSampler(
-            SamplerConfig(crop=self.crop), seed=self.seed * 1009 + wid, backgrounds=self.backgrounds
-        )
+        sampler = self.source.sampler(self.seed * 1009 + wid)
+        S = self.source.crop.input_size
         while True:
             s = sampler.sample()
-            x = preprocess_crops(s.image, self.crop.input_size, IMAGENET_MEAN, IMAGENET_STD)[0]
+            x = preprocess_crops(s.image, S, IMAGENET_MEAN, IMAGENET_STD)[0]
             yield x, s.keypoints, bool(s.present), np.float32(s.area)
 
 
-def _make_loader(seed: int, crop: CropPolicy, batch: int, workers: int, backgrounds: str | None):
+def _make_loader(seed: int, source: _CropSource, batch: int, workers: int):
     import torch
 
     class _Iterable(torch.utils.data.IterableDataset):
         def __iter__(self):
-            return iter(_StreamDataset(seed, crop, backgrounds))
+            return iter(_StreamDataset(seed, source))
 
     return torch.utils.data.DataLoader(
         _Iterable(),
@@ -161,17 +190,15 @@ def _make_loader(seed: int, crop: CropPolicy, batch: int, workers: int, backgrou
     )
 
 
-def _validation_set(path: Path, n: int, seed: int, crop: CropPolicy, backgrounds: str | None) -> dict:
-    """A fixed set of rendered crops, cached next to the checkpoints so a resumed run sees the same."""
+def _validation_set(path: Path, n: int, seed: int, source: _CropSource) -> dict:
+    """A fixed set of crops, cached next to the checkpoints so a resumed run sees the same."""
     if path.is_file():
         data = dict(np.load(path))
-        if len(data["image"]) == n and data["image"].shape[1] == crop.input_size:
+        if len(data["image"]) == n and data["image"].shape[1] == source.crop.input_size:
             return data
     from tqdm import tqdm
 
-    from dronekey.sim_replay.sampler import CropSampler, SamplerConfig
-
-    sampler = CropSampler(SamplerConfig(crop=crop), seed=seed, backgrounds=backgrounds)
+    sampler = source.sampler(seed)
     quiet = not sys.stderr.isatty()  # logs get one line per epoch instead of progress bars
     bar = tqdm(range(n), desc="rendering validation crops", unit="crop", leave=False, disable=quiet)
     samples = [sampler.sample() for _ in bar]
@@ -290,6 +317,35 @@ def write_plots(history: list[dict], out_dir: Path) -> None:
     plt.close(fig)
 
 
+def _crop_sources(args: argparse.Namespace, crop: CropPolicy) -> tuple[_CropSource, _CropSource]:
+    """Training and validation crop sources: the renderer (its own validation seed), or ``--coco``.
+
+    With ``--coco`` and no validation JSON, every tenth image is held out for validation (adjacent
+    video frames are alike, so such a split flatters the figures: prefer a real validation file).
+    """
+    if not args.coco:
+        source = _CropSource(crop, backgrounds=args.backgrounds)
+        return source, source
+    from dronekey.coco_crops import find_coco_splits, load_coco_images
+
+    train_files, val_files = find_coco_splits(args.coco)
+    train_images = load_coco_images(train_files)
+    if val_files:
+        val_images = load_coco_images(val_files)
+    else:
+        val_images = train_images[9::10]
+        train_images = [im for i, im in enumerate(train_images) if i % 10 != 9]
+        log.warning("--coco %s: no validation JSON; holding out every tenth image", args.coco)
+    log.info(
+        "COCO data: %d training images (%s), %d validation images (%s)",
+        len(train_images),
+        ", ".join(map(str, train_files)),
+        len(val_images),
+        ", ".join(map(str, val_files)) or "held out",
+    )
+    return _CropSource(crop, coco_images=train_images), _CropSource(crop, coco_images=val_images)
+
+
 # ----------------------------------------------------------------------------- training
 def train(args: argparse.Namespace) -> dict:
     import torch
@@ -365,16 +421,14 @@ def train(args: argparse.Namespace) -> dict:
     )
     bce = torch.nn.BCEWithLogitsLoss()
 
+    train_source, val_source = _crop_sources(args, crop)
     val = _validation_set(
-        out / f"val_{recipe.val_samples}_{crop.input_size}.npz",
+        out / f"val_{'coco_' if args.coco else ''}{recipe.val_samples}_{crop.input_size}.npz",
         recipe.val_samples,
         7919,
-        crop,
-        args.backgrounds,
+        val_source,
     )
-    loader = _make_loader(
-        args.seed + 7 * start_epoch, crop, recipe.batch_size, args.workers, args.backgrounds
-    )
+    loader = _make_loader(args.seed + 7 * start_epoch, train_source, recipe.batch_size, args.workers)
     batches = iter(loader)
     n_params = count_parameters(net)
     log.info(
@@ -568,6 +622,14 @@ def build_parser() -> argparse.ArgumentParser:
         "--seed", type=int, default=0, help="seed of the training stream (validation uses its own)"
     )
     p.add_argument("--backgrounds", default=None, help="folder of background photos mixed into the renders")
+    p.add_argument(
+        "--coco",
+        default=None,
+        metavar="PATH",
+        help="train on a COCO keypoint dataset instead of renders: a JSON file, or a folder (the "
+        "2DroneKey layout) whose JSONs named *train* / *val* are the splits; images beside the JSON "
+        "or in an images/ folder next to it",
+    )
     p.add_argument("--workers", type=int, default=1, help="rendering processes feeding the trainer")
     p.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")
     p.add_argument(
@@ -603,11 +665,19 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--workers must be >= 0, got {args.workers}")
     if args.backgrounds is not None and not Path(args.backgrounds).is_dir():
         parser.error(f"--backgrounds folder not found: {args.backgrounds}")
-    args.data_description = "dronekey.sim_replay rendered crops" + (
-        f" + photos from {args.backgrounds}" if args.backgrounds else ""
-    )
+    if args.coco is not None and args.backgrounds is not None:
+        parser.error("--backgrounds mixes photos into renders; it does not apply to --coco")
+    if args.coco is not None:
+        args.data_description = f"COCO keypoint dataset {args.coco}"
+    else:
+        args.data_description = "dronekey.sim_replay rendered crops" + (
+            f" + photos from {args.backgrounds}" if args.backgrounds else ""
+        )
     try:
         train(args)
+    except CocoDataError as exc:
+        print(f"dronekey-train: {exc}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         print("dronekey-train: interrupted; resume with --resume", file=sys.stderr)
         return 130
