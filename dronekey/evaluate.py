@@ -62,6 +62,13 @@ def _cmd_pose(args: argparse.Namespace) -> int:
         raise _UsageError("give exactly one of --sequence FILE.json or --all DIR")
     if args.oracle_noise is not None and args.oracle_noise < 0:
         raise _UsageError(f"--oracle-noise must be >= 0 px, got {args.oracle_noise}")
+    if args.plot:
+        if args.sequence is None:
+            raise _UsageError("--plot draws one sequence: use it with --sequence")
+        try:
+            import matplotlib  # noqa: F401  (checked before a long run, not after it)
+        except ImportError:
+            raise _UsageError("--plot needs matplotlib: pip install 'dronekey[plot]'") from None
     if args.sequence is not None:
         paths = [Path(args.sequence)]
     else:
@@ -80,7 +87,7 @@ def _cmd_pose(args: argparse.Namespace) -> int:
         seq, frames = _load(path, args.video if args.sequence else None)
         res = evaluate_sequence(seq, frames, args.model, args.oracle_noise, progress=sys.stderr.isatty())
         results.append(res)
-        if args.plot and args.sequence:
+        if args.plot:
             plot_sequence(res, args.plot)
     if args.sequence:
         out = results[0].to_dict()
@@ -118,14 +125,27 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--log-level", default="WARNING", help="logging level (DEBUG, INFO, WARNING)")
     sub = p.add_subparsers(dest="command", required=True)
-    k = sub.add_parser("keypoints", help="AP^kp, SR90, SR95 and presence AUC on freshly rendered frames")
+    k = sub.add_parser(
+        "keypoints",
+        help="AP^kp, SR90, SR95 and presence AUC on freshly rendered frames",
+        description="Render FRAMES fresh frames, crop around each drone as the localiser does (the "
+        "model's jitter and scale policy), run the ONNX model and score its keypoints in full-frame "
+        "pixels: AP^kp, SR90, SR95 (percent) and the presence AUC (drone-free crops included).",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
     k.add_argument("--preset", default="2dronekey", help="sim_replay preset to render")
     k.add_argument("--frames", type=int, default=200, help="frames to render")
     k.add_argument("--seed", type=int, default=1234, help="render seed (use one never used in training)")
     k.add_argument("--model", default=None, help="ONNX model (default: the shipped one)")
     k.add_argument("--json", action="store_true", help="print one JSON object")
     k.set_defaults(func=_cmd_keypoints)
-    q = sub.add_parser("pose", help="6DoF errors of the pipeline on sequences (paper Tab. VI)")
+    q = sub.add_parser(
+        "pose",
+        help="6DoF errors of the pipeline on sequences (paper Tab. VI)",
+        description="Run the daemon's pipeline over rendered sequences and compare its 6DoF tracks "
+        "with the ground truth: MAE-angle, RMSE, MAE-absolute, filtered and raw PnP. --sequence for "
+        "one file (with --plot), --all for the paper's Tab. VI over seq11-13.",
+    )
     q.add_argument("--sequence", help="sequence JSON (DESIGN.md §5.1)")
     q.add_argument("--all", help="folder holding seq11.json, seq12.json, seq13.json and their videos")
     q.add_argument("--video", help="video or image folder (default: from the JSON's file names)")

@@ -179,7 +179,13 @@ class KeypointModel:
         if threads < 1:
             raise ValueError(f"threads must be >= 1, got {threads}")
         self.threads = threads
-        self.session = ort.InferenceSession(str(self.path), _session_options(threads), providers=requested)
+        try:
+            options = _session_options(threads)
+            self.session = ort.InferenceSession(str(self.path), options, providers=requested)
+        except Exception as exc:  # onnxruntime raises its own Fail / InvalidProtobuf / InvalidGraph types
+            if type(exc).__module__.startswith("onnxruntime"):
+                raise ModelFormatError(f"{self.path} is not a loadable ONNX model ({exc})") from None
+            raise
         self.providers = self.session.get_providers()
         failed = [p for p in requested if p not in self.providers]
         if failed:

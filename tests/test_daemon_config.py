@@ -186,6 +186,16 @@ def test_missing_model_and_unknown_source_scheme():
     assert "unknown scheme 'ftp'" in result.stderr
 
 
+def test_validate_config_loads_the_model(tmp_path):
+    """A file that exists but is no DroneKey model fails --validate-config, not the first real run."""
+    not_a_model = tmp_path / "model.onnx"
+    not_a_model.write_bytes(b"not an ONNX file")
+    result = run_cli("--source", "sim://seq13", "--model", str(not_a_model), "--validate-config")
+    assert result.returncode == ExitCode.USAGE, result.stderr
+    assert f"model: {not_a_model} is not a loadable ONNX model" in result.stderr
+    assert "Traceback" not in result.stderr
+
+
 def test_print_config_is_the_effective_config_and_loads_back(tmp_path, write_config):
     cfg = write_config("source: {uri: sim://seq12}\nzenoh: {mode: client, connect: [tcp/10.0.0.1:7447]}\n")
     result = run_cli("--config", str(cfg), "--zenoh-mode", "peer", "--no-mcap", "--print-config")

@@ -7,7 +7,10 @@ from daemon_media import write_untrained_model
 from dronekey.drone_spec import load_spec
 from dronekey.localizer import LocalizerConfig, box_from_keypoints, box_from_pose
 from dronekey.pipeline import TrackingPipeline
+from dronekey.sim_replay.backgrounds import landscape, sky
+from dronekey.sim_replay.mesh import DroneStyle, build_mesh
 from dronekey.sim_replay.presets import build_sequence, preset_camera
+from dronekey.sim_replay.renderer import Lighting, render_drone
 from dronekey.types import Frame
 
 SPEC = load_spec("mini2")
@@ -48,6 +51,23 @@ def test_acquisition_candidates_include_the_drone(pipeline, seed):
     assert 1 <= len(rois) <= LocalizerConfig().max_candidates
     centre = np.asarray(rf.record.drone.bbox_xywh[:2]) + np.asarray(rf.record.drone.bbox_xywh[2:]) / 2
     assert any(x0 <= centre[0] <= x0 + s and y0 <= centre[1] <= y0 + s for x0, y0, s in rois)
+
+
+@pytest.mark.parametrize("background", [sky, landscape])
+@pytest.mark.parametrize("size_px", [30, 600])
+def test_acquisition_candidates_cover_drones_from_30_to_600_px(pipeline, size_px, background):
+    """The ends of the size range the daemon must handle in a 1080p frame: some candidate crop holds
+    the whole drone and is at most 3.5 times its size (the network then refines the crop)."""
+    camera, rng = preset_camera(), np.random.default_rng(size_px)
+    image = background(1080, 1920, rng)
+    R = next(iter(build_sequence("seq13", seed=3, frames=1))).record.drone.rotation
+    z = camera.fx * SPEC.extent_m / size_px
+    t = z * np.array([(800 - camera.cx) / camera.fx, (500 - camera.cy) / camera.fy, 1.0])
+    drone = render_drone(image, camera, build_mesh(SPEC), R, t, DroneStyle.random(rng), Lighting.random(rng))
+    box = drone.bbox_xywh
+    assert 0.8 * size_px <= max(box[2:]) <= 1.05 * size_px
+    rois = pipeline.localizer.candidate_rois(image)
+    assert any(_contains(roi, box) and roi[2] <= 3.5 * max(box[2:]) for roi in rois), (box, rois)
 
 
 def test_empty_sky_gives_no_candidate_and_no_track(pipeline):
