@@ -250,7 +250,13 @@ def _add_pipeline_commands(subparsers) -> None:
     add_soak_command(subparsers)
 
 
-SUBCOMMANDS: list[Callable] = [add_model_command, _add_pipeline_commands]
+def _add_sampler_command(subparsers) -> None:
+    from dronekey.bench_sampler import add_sampler_command
+
+    add_sampler_command(subparsers)
+
+
+SUBCOMMANDS: list[Callable] = [add_model_command, _add_pipeline_commands, _add_sampler_command]
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -148,3 +148,12 @@ def test_sigterm_stops_a_soak_with_the_figures_so_far(assets):
     report = json.loads(out)
     assert report["stopped_early"].startswith("stopped by SIGTERM") and report["frames"] >= 100
     assert report["exit_code"] == 143 and "figures up to there" in err
+
+
+def test_sampler_reports_its_rate():
+    result = bench("sampler", "--samples", "10", "--json")
+    assert result.returncode == 0, result.stderr
+    out = json.loads(result.stdout)
+    assert out["samples"] == 10 and out["input"] == [128, 128]
+    assert out["samples_per_s"] > 0 and out["cpu_ms_per_sample"] > 0 and 0 <= out["with_drone"] <= 1
+    assert bench("sampler", "--samples", "0").returncode == 2  # argparse: one line, exit 2
