@@ -3,16 +3,17 @@ together exactly once, for the evaluation and the daemon alike (DESIGN.md §3).
 
     Frame --Localizer--> KeypointDetection --PoseEstimator--> PoseMeasurement --Tracker--> Tracks
 
-While a track lives, the crop follows the track's predicted pose and the prediction is the prior
-that picks between the two IPPE solutions; when that crop shows no drone (presence below the
-threshold) or its keypoints give no acceptable pose, the localiser searches the whole frame.
+While a track lives, the crop follows the track's predicted pose, and the prediction is the prior
+that undoes the network's keypoint-order flips (``keypoint_order``) and picks between the two IPPE
+solutions; when that crop shows no drone (presence below the threshold) or its keypoints give no
+acceptable pose, the localiser searches the whole frame.
 """
 
 from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +21,7 @@ import numpy as np
 from dronekey.camera import CalibrationError, CameraModel
 from dronekey.crop import CropPolicy
 from dronekey.drone_spec import DroneSpec, load_spec
+from dronekey.keypoint_order import KeypointOrder
 from dronekey.localizer import Localizer, LocalizerConfig, box_from_pose
 from dronekey.pose import PoseEstimator, PoseRejection
 from dronekey.runtime import KeypointModel
@@ -79,14 +81,27 @@ class PoseTracker:
         self.estimator = PoseEstimator(camera, spec, keypoint_sigma_px=keypoint_sigma_px)
         self.tracker = Tracker(tracker)
         self.max_reprojection_frac = max_reprojection_frac
+        self.order = KeypointOrder()
+        self._prior_track: int | None = None
 
     def prior(self, t_ns: int) -> tuple[np.ndarray, np.ndarray] | None:
         """Predicted pose (R, t) of the best live track at ``t_ns`` (confirmed first), or None."""
         predictions = [p for p in self.tracker.predict(t_ns) if p.status != TrackStatus.LOST]
-        if not predictions:
-            return None
-        best = min(predictions, key=lambda p: (p.status != TrackStatus.CONFIRMED, p.track_id))
-        return best.R, best.t
+        best = min(predictions, key=lambda p: (p.status != TrackStatus.CONFIRMED, p.track_id), default=None)
+        track_id = best.track_id if best is not None else None
+        if track_id != self._prior_track:  # the keypoint-order history belongs to one track
+            self.order.reset()
+            self._prior_track = track_id
+        return (best.R, best.t) if best is not None else None
+
+    def order_keypoints(self, detection: KeypointDetection, prior) -> KeypointDetection:
+        """The detection with its keypoint order made to fit the prior's projection, when the
+        recent history trusts the track (``dronekey.keypoint_order``); unchanged without a prior."""
+        if prior is None:
+            return detection
+        predicted = self.camera.project_body(self.spec.keypoints_3d, *prior)
+        keypoints, symmetry = self.order.apply(detection.keypoints_px, predicted)
+        return detection if symmetry == 0 else replace(detection, keypoints_px=keypoints)
 
     def measure(self, detection: KeypointDetection, prior) -> tuple[PoseMeasurement | None, str | None]:
         """PnP pose of a detection (the prior picks the IPPE solution), or None and the reason."""
@@ -176,7 +191,7 @@ class TrackingPipeline:
         if prior is not None:
             box = box_from_pose(self.camera, self.spec, *prior)
             if box is not None and _overlaps_frame(box, w, h):
-                det = self.localizer.detect_in_box(frame.bgr, box)
+                det = self.poses.order_keypoints(self.localizer.detect_in_box(frame.bgr, box), prior)
                 if det.presence >= self.localizer.config.presence_threshold:
                     measurement, rejection = self.poses.measure(det, prior)
                     if measurement is not None:
@@ -187,6 +202,7 @@ class TrackingPipeline:
             det = self.localizer.acquire(frame.bgr)
             timings["acquire"] = _ms(t1)
             if det is not None:
+                det = self.poses.order_keypoints(det, prior)
                 measurement, rejection = self.poses.measure(det, prior)
                 detection, mode = det, "acquire"
         t2 = time.perf_counter()

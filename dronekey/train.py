@@ -56,6 +56,7 @@ import numpy as np
 
 from dronekey.coco_crops import CocoDataError
 from dronekey.crop import CropPolicy
+from dronekey.keypoint_order import SYMMETRIES
 from dronekey.runtime import IMAGENET_MEAN, IMAGENET_STD, preprocess_crops
 
 log = logging.getLogger("dronekey.train")
@@ -214,10 +215,6 @@ def _validation_set(path: Path, n: int, seed: int, source: _CropSource) -> dict:
     return data
 
 
-# The keypoint rectangle's symmetries: identity, front/back swap, left/right swap, 180 deg turn.
-SYMMETRIES = ([0, 1, 2, 3], [1, 0, 3, 2], [3, 2, 1, 0], [2, 3, 0, 1])
-
-
 def symmetric_l1(pred, gt):
     """Order-free L1: the smallest mean |pred - gt| over the keypoint rectangle's symmetries.
 
@@ -227,7 +224,7 @@ def symmetric_l1(pred, gt):
     """
     import torch
 
-    per = torch.stack([(pred - gt[:, perm]).abs().mean(dim=(1, 2)) for perm in SYMMETRIES], dim=1)
+    per = torch.stack([(pred - gt[:, list(perm)]).abs().mean(dim=(1, 2)) for perm in SYMMETRIES], dim=1)
     return per.min(dim=1).values.mean()
 
 
