@@ -46,6 +46,15 @@ class LocalizerConfig:
     min_contrast : smallest local contrast (8-bit levels) a blob must reach.
     background_sigma : blur (work-image px) that estimates the local background.
     use_motion : also propose blobs that changed since the previous frame (static cameras).
+    recut_shift, recut_scale : in tracking mode, the crop is cut again on the detected keypoints when
+        their box's centre is off the crop's centre by more than ``recut_shift`` of the crop side, or
+        its size off by more than ``recut_scale`` (relative): the network was trained on crops within
+        ``CropPolicy``'s jitter of the drone and degrades outside it, so a lagging prediction is
+        corrected the same frame, at the price of a second inference.
+    max_drone_px : longest drone box (full-frame px) a whole salient region is proposed for; a larger
+        region (building edges, or wires joining blobs into one) is searched at its strongest
+        saliency peaks instead, one candidate per peak sized by the peak's own neighbourhood.
+    peaks_per_region : peaks proposed per oversized region.
     """
 
     presence_threshold: float = 0.5
@@ -55,6 +64,10 @@ class LocalizerConfig:
     min_contrast: float = 12.0
     background_sigma: float = 6.0
     use_motion: bool = True
+    recut_shift: float = 0.04
+    recut_scale: float = 0.12
+    max_drone_px: float = 600.0
+    peaks_per_region: int = 3
 
     def __post_init__(self) -> None:
         if not 0.0 < self.presence_threshold < 1.0:
@@ -63,6 +76,11 @@ class LocalizerConfig:
             raise ValueError(f"work_width must be >= 64, got {self.work_width}")
         if self.max_candidates < 1:
             raise ValueError(f"max_candidates must be >= 1, got {self.max_candidates}")
+        if not self.max_drone_px > 0 or self.peaks_per_region < 1:
+            raise ValueError(
+                "need max_drone_px > 0 and peaks_per_region >= 1, "
+                f"got {self.max_drone_px} and {self.peaks_per_region}"
+            )
 
 
 def box_from_keypoints(keypoints_px: np.ndarray, spec: DroneSpec) -> Box:
@@ -128,6 +146,21 @@ class Localizer:
         """Run the network on the training framing of ``box`` (no jitter)."""
         return self.model.detect(frame_bgr, [self.crop.roi(box)])[0]
 
+    def track(self, frame_bgr: np.ndarray, box: Box) -> KeypointDetection:
+        """Keypoints in the crop of a predicted box, recut once on them when the prediction was off
+        (``LocalizerConfig.recut_shift`` / ``recut_scale``)."""
+        det = self.detect_in_box(frame_bgr, box)
+        cfg = self.config
+        if det.presence < cfg.presence_threshold or not np.all(np.isfinite(det.keypoints_px)):
+            return det
+        x0, y0, side = det.roi
+        nx, ny, nside = self.crop.roi(box_from_keypoints(det.keypoints_px, self.spec))
+        shift = max(abs(nx + nside / 2 - x0 - side / 2), abs(ny + nside / 2 - y0 - side / 2)) / side
+        if shift <= cfg.recut_shift and abs(nside / side - 1.0) <= cfg.recut_scale:
+            return det
+        recut = self.model.detect(frame_bgr, [(nx, ny, nside)])[0]
+        return recut if recut.presence >= cfg.presence_threshold else det
+
     def refine(self, frame_bgr: np.ndarray, detection: KeypointDetection) -> KeypointDetection:
         """Re-crop on the box implied by a detection's keypoints and run the network again."""
         return self.detect_in_box(frame_bgr, box_from_keypoints(detection.keypoints_px, self.spec))
@@ -158,19 +191,20 @@ class Localizer:
             maps.append(_max_abs_difference(small, self._prev_small))
         self._prev_small = small
         blobs: list[tuple[float, Box]] = []
+        max_side = cfg.max_drone_px * scale
         for m in maps:
-            blobs.extend(_blobs(m, cfg.min_contrast))
+            blobs.extend(_blobs(m, cfg.min_contrast, max_side, cfg.peaks_per_region))
         blobs.sort(key=lambda b: -b[0])
-        rois, centres = [], []
+        rois, seen = [], []
         for _, (bx, by, bw, bh) in blobs:
             # Blob centre in edge coordinates of the small map -> full-frame pixel-centre coordinates.
             cx, cy = (bx + bw / 2) / scale - 0.5, (by + bh / 2) / scale - 0.5
             size = max(bw, bh) / scale
-            if any(abs(cx - x) < s / 2 and abs(cy - y) < s / 2 for x, y, s in centres):
-                continue  # the same object seen by both maps
             side = max(cfg.candidate_scale * size, float(self.crop.min_side))
+            if any(abs(cx - x) < s / 2 and abs(cy - y) < s / 2 and s / 2 < side < 2 * s for x, y, s in seen):
+                continue  # the same object seen by both maps (a small blob inside a big one stays)
             rois.append(roi_around_box(cx, cy, side))
-            centres.append((cx, cy, side))
+            seen.append((cx, cy, side))
             if len(rois) >= cfg.max_candidates:
                 break
         return rois
@@ -194,8 +228,14 @@ def _median(values: np.ndarray) -> float:
     return float((part[:k].max() + part[k]) / np.float32(2))  # np.median: float32 mean of the two
 
 
-def _blobs(saliency: np.ndarray, min_contrast: float) -> list[tuple[float, Box]]:
-    """Connected regions of high saliency as (score, box in the map's pixels)."""
+def _blobs(
+    saliency: np.ndarray, min_contrast: float, max_side: float | None = None, peaks: int = 3
+) -> list[tuple[float, Box]]:
+    """Connected regions of high saliency as (score, box in the map's pixels).
+
+    A region whose box is longer than ``max_side`` is replaced by its ``peaks`` strongest local
+    maxima, each with the box of the pixels around it above half its value (``_peak_blobs``).
+    """
     med = _median(saliency)
     mad = _median(np.abs(saliency - np.float32(med))) + 1e-3
     thr = max(min_contrast, med + 8.0 * 1.4826 * mad)
@@ -211,7 +251,44 @@ def _blobs(saliency: np.ndarray, min_contrast: float) -> list[tuple[float, Box]]
         x, y, bw, bh, area = stats[i]
         if area < 4:
             continue
+        if max_side is not None and max(bw, bh) > max_side:
+            inside = labels[y : y + bh, x : x + bw] == i
+            out.extend(_peak_blobs(saliency, (x0 + x, y0 + y, bw, bh), inside, thr, max_side, peaks))
+            continue
         region = saliency[y0 + y : y0 + y + bh, x0 + x : x0 + x + bw][labels[y : y + bh, x : x + bw] == i]
         score = float(region.max()) * np.sqrt(float(area))
         out.append((score, (float(x0 + x), float(y0 + y), float(bw), float(bh))))
+    return out
+
+
+def _peak_blobs(
+    saliency: np.ndarray,
+    box: tuple[int, int, int, int],
+    inside: np.ndarray,
+    thr: float,
+    max_side: float,
+    n: int,
+) -> list[tuple[float, Box]]:
+    """The ``n`` strongest saliency peaks of an oversized region, each with its own small blob.
+
+    A peak is a local maximum (7 x 7) of the lightly smoothed map above ``thr``; its blob is the
+    connected set of pixels above half the peak's value within ``max_side`` of it. Scored like a
+    region: peak value x sqrt(blob area).
+    """
+    x, y, bw, bh = box
+    sub = cv2.GaussianBlur(saliency[y : y + bh, x : x + bw], (0, 0), 1.0)
+    is_peak = (sub >= cv2.dilate(sub, np.ones((7, 7), np.uint8))) & inside & (sub > thr)
+    py, px = np.nonzero(is_peak)
+    order = np.argsort(-sub[py, px])[:n]
+    out = []
+    half = int(max_side // 2)
+    for k in order:
+        cy, cx = int(py[k]), int(px[k])
+        wy0, wx0 = max(cy - half, 0), max(cx - half, 0)
+        window = sub[wy0 : cy + half + 1, wx0 : cx + half + 1]
+        _, labels = cv2.connectedComponents((window > 0.5 * sub[cy, cx]).astype(np.uint8), connectivity=8)
+        ys, xs = np.nonzero(labels == labels[cy - wy0, cx - wx0])
+        bx, by = float(x + wx0 + xs.min()), float(y + wy0 + ys.min())
+        w, h = float(xs.max() - xs.min() + 1), float(ys.max() - ys.min() + 1)
+        out.append((float(sub[cy, cx]) * np.sqrt(float(len(xs))), (bx, by, w, h)))
     return out

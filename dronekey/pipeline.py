@@ -191,7 +191,7 @@ class TrackingPipeline:
         if prior is not None:
             box = box_from_pose(self.camera, self.spec, *prior)
             if box is not None and _overlaps_frame(box, w, h):
-                det = self.poses.order_keypoints(self.localizer.detect_in_box(frame.bgr, box), prior)
+                det = self.poses.order_keypoints(self.localizer.track(frame.bgr, box), prior)
                 if det.presence >= self.localizer.config.presence_threshold:
                     measurement, rejection = self.poses.measure(det, prior)
                     if measurement is not None:

@@ -1,5 +1,6 @@
 """Localiser and pipeline plumbing: candidate search on real rendered frames, boxes, empty frames."""
 
+import cv2
 import numpy as np
 import pytest
 from daemon_media import write_untrained_model
@@ -7,7 +8,7 @@ from daemon_media import write_untrained_model
 from dronekey.drone_spec import load_spec
 from dronekey.localizer import LocalizerConfig, box_from_keypoints, box_from_pose
 from dronekey.pipeline import TrackingPipeline
-from dronekey.sim_replay.backgrounds import landscape, sky
+from dronekey.sim_replay.backgrounds import landscape, sky, urban
 from dronekey.sim_replay.mesh import DroneStyle, build_mesh
 from dronekey.sim_replay.presets import build_sequence, preset_camera
 from dronekey.sim_replay.renderer import Lighting, render_drone
@@ -68,6 +69,33 @@ def test_acquisition_candidates_cover_drones_from_30_to_600_px(pipeline, size_px
     assert 0.8 * size_px <= max(box[2:]) <= 1.05 * size_px
     rois = pipeline.localizer.candidate_rois(image)
     assert any(_contains(roi, box) and roi[2] <= 3.5 * max(box[2:]) for roi in rois), (box, rois)
+
+
+def test_a_drone_joined_to_wires_and_buildings_is_still_proposed(pipeline):
+    """Wires across the frame join every salient thing into one region as big as the frame (a
+    rendered seq13 frame did this): that region is searched at its peaks, and a drone seen moving
+    (the motion map) is proposed on its own even inside it."""
+    camera, rng = preset_camera(), np.random.default_rng(5)
+    background = urban(1080, 1920, rng)
+    R = next(iter(build_sequence("seq13", seed=3, frames=1))).record.drone.rotation
+    z = camera.fx * SPEC.extent_m / 90
+    frames, boxes = [], []
+    for u in (1000, 1016):  # the drone moves 16 px between two frames
+        image = background.copy()
+        t = z * np.array([(u - camera.cx) / camera.fx, (650 - camera.cy) / camera.fy, 1.0])
+        drone = render_drone(
+            image, camera, build_mesh(SPEC), R, t, DroneStyle.random(rng), Lighting.random(rng)
+        )
+        cv2.line(image, (0, 180), (1919, 170), (20, 20, 20), 3)  # wires through the whole frame
+        cv2.line(image, (1130, 200), (1010 + u - 1000, 1079), (20, 20, 20), 4)
+        frames.append(image)
+        boxes.append(drone.bbox_xywh)
+    localizer = pipeline.localizer
+    localizer._prev_small = None
+    first = localizer.candidate_rois(frames[0])
+    assert all(roi[2] <= 1.8 * LocalizerConfig().max_drone_px for roi in first)  # no frame-sized crop
+    second = localizer.candidate_rois(frames[1])
+    assert any(_contains(roi, boxes[1]) and roi[2] <= 3.5 * max(boxes[1][2:]) for roi in second), second
 
 
 def test_empty_sky_gives_no_candidate_and_no_track(pipeline):
