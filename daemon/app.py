@@ -67,7 +67,9 @@ def default_pipeline_factory(camera: CameraModel, config: DaemonConfig) -> Pipel
     from dronekey.pipeline import TrackingPipeline
 
     m = config.model
-    return TrackingPipeline(camera, model_path=m.path, drone=m.drone, threads=m.threads)
+    return TrackingPipeline(
+        camera, model_path=m.path, drone=m.drone, threads=m.threads, mirror_average=m.mirror_average
+    )
 
 
 def _is_model_error(exc: BaseException) -> bool:

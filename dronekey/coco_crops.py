@@ -25,6 +25,7 @@ import cv2
 import numpy as np
 
 from dronekey.crop import CropPolicy, crop_square, to_normalised
+from dronekey.runtime import MIRROR  # a mirrored drone is a drone with its sides exchanged
 from dronekey.sim_replay.sampler import CropSample
 
 __all__ = ["CocoCropSampler", "CocoDataError", "CocoImage", "find_coco_splits", "load_coco_images"]
@@ -32,9 +33,6 @@ __all__ = ["CocoCropSampler", "CocoDataError", "CocoImage", "find_coco_splits", 
 log = logging.getLogger(__name__)
 
 N_KEYPOINTS = 4
-# A horizontally mirrored drone is still a drone (the specs are left/right symmetric) with its
-# sides exchanged: 1 front-right <-> 4 front-left, 2 rear-right <-> 3 rear-left.
-MIRROR = [3, 2, 1, 0]
 _TRAIN_WORDS = ("train",)
 _VAL_WORDS = ("val", "valid", "validation")
 

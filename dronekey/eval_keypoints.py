@@ -43,12 +43,15 @@ def evaluate_keypoints(
     seed: int = 1234,
     model_path: str | Path | None = None,
     progress: bool = False,
+    mirror_average: bool = True,
 ) -> dict:
-    """Render, crop, detect and score; returns the figures of ``dronekey-eval keypoints``."""
+    """Render, crop, detect and score; returns the figures of ``dronekey-eval keypoints``.
+
+    ``mirror_average`` as the daemon's pipeline runs the model by default (``KeypointModel``)."""
     from dronekey.runtime import KeypointModel
     from dronekey.sim_replay.presets import build_sequence
 
-    model = KeypointModel(model_path)
+    model = KeypointModel(model_path, mirror_average=mirror_average)
     policy = CropPolicy(**{**model.metadata.get("crop_policy", {}), "input_size": model.input_size})
     seq = build_sequence(preset, seed=seed, frames=frames)
     rng = np.random.default_rng(seed + 1)

@@ -33,7 +33,14 @@ def _cmd_keypoints(args: argparse.Namespace) -> int:
         raise _UsageError(f"unknown preset {args.preset!r}; available: {', '.join(PRESETS)}")
     if args.frames <= 0:
         raise _UsageError(f"--frames must be positive, got {args.frames}")
-    result = evaluate_keypoints(args.preset, args.frames, args.seed, args.model, progress=sys.stderr.isatty())
+    result = evaluate_keypoints(
+        args.preset,
+        args.frames,
+        args.seed,
+        args.model,
+        progress=sys.stderr.isatty(),
+        mirror_average=not args.no_mirror_average,
+    )
     if args.json:
         print(json.dumps(result))
     else:
@@ -137,6 +144,11 @@ def build_parser() -> argparse.ArgumentParser:
     k.add_argument("--frames", type=int, default=200, help="frames to render")
     k.add_argument("--seed", type=int, default=1234, help="render seed (use one never used in training)")
     k.add_argument("--model", default=None, help="ONNX model (default: the shipped one)")
+    k.add_argument(
+        "--no-mirror-average",
+        action="store_true",
+        help="run each crop once (the daemon also runs its mirror and averages, model.mirror_average)",
+    )
     k.add_argument("--json", action="store_true", help="print one JSON object")
     k.set_defaults(func=_cmd_keypoints)
     q = sub.add_parser(

@@ -135,7 +135,8 @@ class TrackingPipeline:
         ONNX keypoint model; the shipped one by default.
     drone : str, path or DroneSpec
         Drone spec name (``mini2``, ``air2s``), YAML file or spec: the 3D keypoints PnP uses.
-    providers, threads : passed to ``KeypointModel``.
+    providers, threads, mirror_average : passed to ``KeypointModel`` (mirror averaging is on by
+        default: a fifth less keypoint error for about 1.6x the inference time).
     localizer, tracker : configs (defaults suit a small drone at 30 fps).
     keypoint_sigma_px, max_reprojection_frac : see ``PoseTracker``.
     """
@@ -147,6 +148,7 @@ class TrackingPipeline:
         drone: str | Path | DroneSpec = "mini2",
         providers: list[str] | None = None,
         threads: int | None = None,
+        mirror_average: bool = True,
         localizer: LocalizerConfig | None = None,
         tracker: TrackerConfig | None = None,
         keypoint_sigma_px: float = 1.5,
@@ -154,7 +156,9 @@ class TrackingPipeline:
     ) -> None:
         self.camera = camera
         self.spec: DroneSpec = drone if isinstance(drone, DroneSpec) else load_spec(drone)
-        self.model = KeypointModel(model_path, providers=providers, threads=threads)
+        self.model = KeypointModel(
+            model_path, providers=providers, threads=threads, mirror_average=mirror_average
+        )
         crop = CropPolicy(
             **{**self.model.metadata.get("crop_policy", {}), "input_size": self.model.input_size}
         )

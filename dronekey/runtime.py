@@ -126,6 +126,23 @@ def _metadata_json(metadata: dict[str, str], key: str, path: Path):
         raise ModelFormatError(f"{path}: metadata {key!r} is not JSON ({exc})") from None
 
 
+# Keypoint order of a left/right mirrored drone (1 FR <-> 4 FL, 2 RR <-> 3 RL).
+MIRROR = [3, 2, 1, 0]
+
+
+def mirrored_back(keypoints: np.ndarray) -> np.ndarray:
+    """Keypoints (B, 4, 2) predicted on mirrored crops, in normalised units, mapped to the crops."""
+    out = keypoints[:, MIRROR].copy()
+    out[..., 0] = 1.0 - out[..., 0]
+    return out
+
+
+def mirror_averaged(raw: RawOutputs, n: int) -> RawOutputs:
+    """Average the outputs of ``n`` crops (first half of ``raw``) and their mirrors (second half)."""
+    kp = 0.5 * (raw.keypoints[:n] + mirrored_back(raw.keypoints[n:]))
+    return RawOutputs(kp.astype(np.float32), 0.5 * (raw.presence[:n] + raw.presence[n:]), raw.gate[:n])
+
+
 class KeypointModel:
     """The DroneKey keypoint network in ONNX Runtime.
 
@@ -140,6 +157,11 @@ class KeypointModel:
         fallback to the CPU).
     threads : int, optional
         Intra-op threads; default the number of physical cores.
+    mirror_average : bool
+        ``detect`` also runs every crop mirrored left/right (in the same batch) and averages the
+        two answers, the mirrored one with its keypoints' sides exchanged back (1 <-> 4, 2 <-> 3).
+        On 1,500 validation crops this cut the median keypoint error by a fifth (4.94 -> 3.90 px
+        of 128) for about 1.6x the inference time (docs/model.md).
 
     Attributes
     ----------
@@ -157,7 +179,9 @@ class KeypointModel:
         path: str | Path | None = None,
         providers: Sequence[str] | None = None,
         threads: int | None = None,
+        mirror_average: bool = False,
     ) -> None:
+        self.mirror_average = bool(mirror_average)
         self.path = Path(path) if path is not None else default_model_path()
         if not self.path.is_file():
             hint = (
@@ -265,6 +289,9 @@ class KeypointModel:
         if len(rois) == 0:
             return []
         crops = np.stack([crop_square(frame_bgr, tuple(roi), self.input_size) for roi in rois])
-        return self.postprocess(self.inference(self.preprocess(crops)), rois)
+        if not self.mirror_average:
+            return self.postprocess(self.inference(self.preprocess(crops)), rois)
+        raw = self.inference(self.preprocess(np.concatenate([crops, crops[:, :, ::-1]])))
+        return self.postprocess(mirror_averaged(raw, len(rois)), rois)
 
     __call__ = detect

@@ -204,3 +204,27 @@ def test_bench_model_json(capsys, onnx_path):
 def test_bench_missing_edge_model_is_one_line(capsys, tmp_path):
     err = _one_line_error(capsys, ["model", "--edge-model", str(tmp_path / "none.onnx")], bench.main)
     assert "none.onnx" in err
+
+
+def test_mirror_average_equals_the_mean_of_a_crop_and_its_mirror(onnx_path):
+    """detect(mirror_average=True) = mean of the plain answer and the mirrored crop's answer mapped
+    back (x -> 1 - x, sides exchanged), computed here by hand with two separate runs."""
+    from dronekey.crop import crop_square, from_normalised
+    from dronekey.runtime import MIRROR, KeypointModel
+
+    rng = np.random.default_rng(3)
+    frame = rng.integers(0, 256, (240, 320, 3), dtype=np.uint8)
+    rois = [(40, 30, 100), (150, 60, 140)]
+    plain = KeypointModel(onnx_path, threads=1)
+    both = KeypointModel(onnx_path, threads=1, mirror_average=True)
+    S = plain.input_size
+    crops = np.stack([crop_square(frame, roi, S) for roi in rois])
+    a = plain.inference(plain.preprocess(crops))
+    b = plain.inference(plain.preprocess(np.ascontiguousarray(crops[:, :, ::-1])))
+    kb = b.keypoints[:, MIRROR].copy()
+    kb[..., 0] = 1.0 - kb[..., 0]
+    detections = both.detect(frame, rois)
+    for i, (det, roi) in enumerate(zip(detections, rois, strict=True)):
+        expected = from_normalised((a.keypoints[i] + kb[i]) / 2, roi)
+        np.testing.assert_allclose(det.keypoints_px, expected, atol=1e-3)
+        assert det.presence == pytest.approx((a.presence[i] + b.presence[i]) / 2, abs=1e-5)
