@@ -25,9 +25,11 @@ jittered crops around the annotated boxes, plus drone-free crops and left/right 
 JSONs named *train* / *val* are the splits.
 
 Presence stage. After the epochs, the best network's presence head is refit alone for
-``presence_steps`` steps on the frozen network (``fit_presence_head``): with the edge encoder the
-last layer's IR hardly varies between crops, so the head reads the projected-token mean instead
-(``DroneKeyConfig.presence_input``), and a linear head on fixed features needs no more than that.
+``presence_steps`` steps on the frozen network (``fit_presence_head``), and kept only if its
+validation AUC is at least the jointly trained head's. It exists for networks whose head read the
+last layer's IR, which with the edge encoder hardly varies between crops (the head collapsed);
+the edge preset's head reads the projected-token mean (``DroneKeyConfig.presence_input``) and
+trains well jointly, so the refit is a safeguard.
 
 Schedule time. The paper's S(t) = D exp(-0.01 alpha t) runs over t = 0..100 epochs. A recipe with
 another number of epochs follows the same curve over its whole run: the loss is evaluated at
@@ -364,6 +366,7 @@ def train(args: argparse.Namespace) -> dict:
             "D": args.D,
             "val_samples": args.val_samples,
             "patience": args.patience,
+            "presence_steps": args.presence_steps,
         }.items()
         if v is not None
     }
@@ -538,19 +541,24 @@ def train(args: argparse.Namespace) -> dict:
             break
     if recipe.presence_steps and best_path.is_file():
         best, meta = load_checkpoint(best_path)
+        before = evaluate(best, val)
         fit_presence_head(best, batches, recipe.presence_steps)
         metrics = evaluate(best, val)
-        meta["figures"] = {k: round(v, 3) for k, v in metrics.items() if k != "gate"}
-        meta["presence_steps"] = recipe.presence_steps
-        save_checkpoint(best_path, best, meta)
-        best_ap = metrics["ap_kp"]
+        kept = metrics["presence_auc"] >= before["presence_auc"]
         log.info(
-            "presence head refit (%d steps): AP %.2f SR90 %.2f AUC %.2f",
+            "presence head refit (%d steps): AUC %.3f -> %.3f, AP %.2f -> %.2f: %s",
             recipe.presence_steps,
-            metrics["ap_kp"],
-            metrics["sr90"],
+            before["presence_auc"],
             metrics["presence_auc"],
+            before["ap_kp"],
+            metrics["ap_kp"],
+            "kept" if kept else "discarded (the jointly trained head was better)",
         )
+        if kept:
+            meta["figures"] = {k: round(v, 3) for k, v in metrics.items() if k != "gate"}
+            meta["presence_steps"] = recipe.presence_steps
+            save_checkpoint(best_path, best, meta)
+            best_ap = metrics["ap_kp"]
     log.info(
         "done in %.1f min; best AP %.2f; checkpoints %s, %s",
         (time.time() - t_start) / 60,
@@ -647,6 +655,7 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--D", type=float)
     g.add_argument("--val-samples", type=int)
     g.add_argument("--patience", type=int)
+    g.add_argument("--presence-steps", type=int, help="head-only presence steps after the epochs (0: none)")
     return p
 
 
@@ -658,6 +667,8 @@ def main(argv: list[str] | None = None) -> int:
         v = getattr(args, name)
         if v is not None and v <= 0:
             parser.error(f"--{name.replace('_', '-')} must be positive, got {v}")
+    if args.presence_steps is not None and args.presence_steps < 0:
+        parser.error(f"--presence-steps must be >= 0, got {args.presence_steps}")
     if args.workers < 0:
         parser.error(f"--workers must be >= 0, got {args.workers}")
     if args.backgrounds is not None and not Path(args.backgrounds).is_dir():

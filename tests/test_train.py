@@ -43,8 +43,22 @@ def test_tiny_run_writes_checkpoints_and_plots_then_resumes(tmp_path):
     assert [h["epoch"] for h in history] == [1, 2, 3]
 
 
+def test_presence_stage_is_kept_only_when_it_helps(tmp_path, caplog):
+    out = tmp_path / "run"
+    args = ["--preset", "tiny", "--out", str(out), "--workers", "0", "--threads", "1", "--epochs", "1"]
+    with caplog.at_level("INFO", logger="dronekey.train"):
+        assert main([*args, "--presence-steps", "5"]) == 0
+    (line,) = [r.getMessage() for r in caplog.records if "presence head refit" in r.getMessage()]
+    _, meta = load_checkpoint(out / "best.pt")
+    if line.endswith(": kept"):
+        assert meta["presence_steps"] == 5
+    else:
+        assert "discarded" in line and "presence_steps" not in meta
+
+
 @pytest.mark.parametrize(
-    "args", [["--epochs", "0"], ["--batch", "-1"], ["--backgrounds", "/nonexistent/dir"]]
+    "args",
+    [["--epochs", "0"], ["--batch", "-1"], ["--backgrounds", "/nonexistent/dir"], ["--presence-steps", "-1"]],
 )
 def test_bad_arguments_are_one_line_errors(args, tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
