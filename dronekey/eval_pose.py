@@ -8,8 +8,10 @@ annotated frame, the filtered track and the raw PnP pose with the ground truth (
 - MAE-absolute: mean over frames and axes of |t_pred - t_gt|, metres.
 
 Errors are averaged over the annotated frames that have an estimate; ``detected_frames`` says how
-many that is. With ``oracle_noise_px`` the network is replaced by the ground-truth keypoints plus
-Gaussian noise, which measures PnP and the filter alone.
+many that is. The filtered estimate is the best confirmed or coasting track, the tracks the
+daemon's MAVLink output sends (a tentative track can be a single wrong detection); the raw PnP
+estimate is every frame's measurement. With ``oracle_noise_px`` the network is replaced by the
+ground-truth keypoints plus Gaussian noise, which measures PnP and the filter alone.
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ import numpy as np
 from dronekey.drone_spec import DroneSpec, load_spec
 from dronekey.metrics import ap_kp, oks_drone, sr
 from dronekey.rotations import geodesic_angle_deg, quat_wxyz_to_matrix
-from dronekey.types import Frame, KeypointDetection, TrackStatus
+from dronekey.types import PUBLISHED_STATUSES, Frame, KeypointDetection, TrackStatus
 
 __all__ = ["PoseErrors", "SequenceResult", "evaluate_sequence", "pose_errors", "sequence_spec"]
 
@@ -62,6 +64,12 @@ def pose_errors(R_pred, t_pred, R_gt, t_gt) -> PoseErrors:
         float(np.sqrt(np.mean(np.sum(dt**2, axis=1)))),
         float(np.mean(np.abs(dt))),
     )
+
+
+def _track_rank(track) -> tuple:
+    """Which published track is the pipeline's estimate: confirmed (measured this frame) before
+    coasting, then the most hits, then the oldest id."""
+    return (track.status != TrackStatus.CONFIRMED, -track.hits, track.track_id)
 
 
 @dataclass
@@ -161,8 +169,7 @@ def evaluate_sequence(
         n_frames += 1
         if ann is None or not getattr(ann, "has_pose", True):
             continue
-        live = [tr for tr in tracks if tr.status != TrackStatus.LOST]
-        live.sort(key=lambda tr: (tr.status != TrackStatus.CONFIRMED, tr.track_id))
+        live = sorted((tr for tr in tracks if tr.status in PUBLISHED_STATUSES), key=_track_rank)
         s["t"].append(sf.t_ns / 1e9)
         s["R_gt"].append(ann.rotation)
         s["t_gt"].append(ann.translation)
@@ -233,7 +240,7 @@ def table_vi(results: list[SequenceResult]) -> str:
             avg = weighted_average(vals, weights, rms=attr == "rmse_m")
             cells = " | ".join(fmt.format(v) for v in vals)
             lines.append(f"{'':<10} | {metric:<17} | {cells} | {fmt.format(avg)}")
-        det = " | ".join(f"{res.detected_frames:>4}/{res.frames:<3}" for res in results)
+        det = " | ".join(f"{get(res).frames:>4}/{res.frames:<3}" for res in results)
         lines.append(f"{'':<10} | {'frames w/ estimate':<17} | {det} |")
         lines.append("")
     return "\n".join(lines)

@@ -9,7 +9,7 @@ from enum import StrEnum
 
 import numpy as np
 
-__all__ = ["Frame", "KeypointDetection", "PoseMeasurement", "Track", "TrackStatus"]
+__all__ = ["PUBLISHED_STATUSES", "Frame", "KeypointDetection", "PoseMeasurement", "Track", "TrackStatus"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -73,6 +73,12 @@ class TrackStatus(StrEnum):
     CONFIRMED = "confirmed"
     COASTING = "coasting"
     LOST = "lost"
+
+
+# What ground stations are sent (MAVLink, SBS-1) and what the evaluation scores as the filtered
+# estimate: tentative tracks are not yet confirmed (false alarms on a map are worse than a short
+# delay); a lost track's last update says it is gone, and nothing new about where it is.
+PUBLISHED_STATUSES = frozenset({TrackStatus.CONFIRMED, TrackStatus.COASTING})
 
 
 @dataclass(slots=True)

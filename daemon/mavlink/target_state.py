@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dronekey.daemon.geo import CameraGeo
-from dronekey.types import Track, TrackStatus
+from dronekey.types import PUBLISHED_STATUSES, Track, TrackStatus
 
 __all__ = [
     "DEFAULT_ICAO_BASE",
@@ -31,9 +31,6 @@ __all__ = [
     "validate_statuses",
 ]
 
-# Tentative tracks are not yet confirmed (false alarms on a ground station's map are worse than a
-# short delay); a lost track's last update says it is gone, and nothing new about where it is.
-PUBLISHED_STATUSES = frozenset({TrackStatus.CONFIRMED, TrackStatus.COASTING})
 
 # 24-bit addresses from 0xF00000: the top of the address space, which ICAO keeps for itself rather
 # than allocating to states (Annex 10 Vol. III), so a track is unlikely to take a registered
