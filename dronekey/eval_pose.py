@@ -129,6 +129,7 @@ def evaluate_sequence(
     oracle_noise_px: float | None = None,
     seed: int = 0,
     progress: bool = False,
+    mirror_average: bool = True,
 ) -> SequenceResult:
     """Run the pipeline over ``frames`` (an iterable of ``SequenceFrame``) of the loaded ``seq``."""
     from dronekey.pipeline import PoseTracker, TrackingPipeline
@@ -136,7 +137,7 @@ def evaluate_sequence(
     spec = sequence_spec(seq)
     rng = np.random.default_rng(seed)
     if oracle_noise_px is None:
-        pipeline = TrackingPipeline(seq.camera, model_path, drone=spec)
+        pipeline = TrackingPipeline(seq.camera, model_path, drone=spec, mirror_average=mirror_average)
         poses = pipeline.poses
     else:
         # The filter is told the true keypoint noise (floor 0.1 px), as a tuned deployment would be.

@@ -92,7 +92,14 @@ def _cmd_pose(args: argparse.Namespace) -> int:
     results = []
     for path in paths:
         seq, frames = _load(path, args.video if args.sequence else None)
-        res = evaluate_sequence(seq, frames, args.model, args.oracle_noise, progress=sys.stderr.isatty())
+        res = evaluate_sequence(
+            seq,
+            frames,
+            args.model,
+            args.oracle_noise,
+            progress=sys.stderr.isatty(),
+            mirror_average=not args.no_mirror_average,
+        )
         results.append(res)
         if args.plot:
             plot_sequence(res, args.plot)
@@ -165,6 +172,9 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--plot", help="write a PNG of ground truth against the estimate (with --sequence)")
     q.add_argument(
         "--oracle-noise", type=float, help="use ground-truth keypoints plus this Gaussian noise (px)"
+    )
+    q.add_argument(
+        "--no-mirror-average", action="store_true", help="run each crop once (the daemon's default averages)"
     )
     q.add_argument("--json", action="store_true", help="print one JSON object")
     q.set_defaults(func=_cmd_pose)
