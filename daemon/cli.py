@@ -109,7 +109,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--validate-config",
         action="store_const",
         const=True,
-        help="check the config and the flags (and that the source and calibration exist); exit 0 or 2",
+        help="check the config and the flags (and that the source, calibration and model load); exit 0 or 2",
     )
     g.add_argument(
         "--print-config", action="store_const", const=True, help="print the effective config as YAML"
