@@ -72,6 +72,18 @@ def default_pipeline_factory(camera: CameraModel, config: DaemonConfig) -> Pipel
     )
 
 
+def build_pipeline(
+    camera: CameraModel, config: DaemonConfig, factory: PipelineFactory = default_pipeline_factory
+) -> Pipeline:
+    """``factory(camera, config)``; a bad model, drone spec or calibration is a ``UsageError``."""
+    try:
+        return factory(camera, config)
+    except Exception as exc:
+        if _is_model_error(exc):
+            raise UsageError(f"model: {exc}") from None
+        raise
+
+
 def _is_model_error(exc: BaseException) -> bool:
     """Errors a bad model, drone spec or calibration raises while the pipeline is built."""
     if isinstance(exc, (FileNotFoundError, ValueError, OSError)):
@@ -226,12 +238,7 @@ class DaemonApp:
             log.info(
                 "intrinsics scaled from %dx%d to the source's %dx%d", *self._base_camera.size, width, height
             )
-        try:
-            self._pipeline = self._pipeline_factory(camera, self.config)
-        except Exception as exc:
-            if _is_model_error(exc):
-                raise UsageError(f"model: {exc}") from None
-            raise
+        self._pipeline = build_pipeline(camera, self.config, self._pipeline_factory)
         self._model_info = self._describe_model(self._pipeline)
         self._resolution = (width, height)
         ctx = OutputContext(camera, self._model_info, simulated=self._capture.reader.kind == "sim")

@@ -158,7 +158,7 @@ def collect_overrides(args: argparse.Namespace) -> dict[str, tuple[Any, str]]:
 
 def _validate(config) -> None:
     """--validate-config beyond the schema: the source, its calibration and the model must be usable."""
-    from dronekey.daemon.app import _is_model_error, default_pipeline_factory
+    from dronekey.daemon.app import build_pipeline
     from dronekey.daemon.calibration import resolve_calibration
     from dronekey.daemon.sources import SourceOpenError, make_reader
 
@@ -174,12 +174,7 @@ def _validate(config) -> None:
         log.warning("%s does not exist now; the daemon will wait for it", reader.description)
     camera, origin = resolve_calibration(config.camera.calibration, reader)
     log.info("calibration: %s (%dx%d)", origin, camera.width, camera.height)
-    try:
-        default_pipeline_factory(camera, config)  # loads the model and the drone spec as a run would
-    except Exception as exc:
-        if _is_model_error(exc):
-            raise UsageError(f"model: {exc}") from None
-        raise
+    build_pipeline(camera, config)  # loads the model and the drone spec as a run would
 
 
 def main(argv: list[str] | None = None) -> int:

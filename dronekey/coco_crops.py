@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 
 from dronekey.crop import CropPolicy, crop_square, to_normalised
-from dronekey.runtime import MIRROR  # a mirrored drone is a drone with its sides exchanged
+from dronekey.runtime import MIRROR, mirrored_back  # a mirrored drone has its sides exchanged
 from dronekey.sim_replay.sampler import CropSample
 
 __all__ = ["CocoCropSampler", "CocoDataError", "CocoImage", "find_coco_splits", "load_coco_images"]
@@ -253,8 +253,7 @@ class CocoCropSampler:
         area = float(image.boxes[d][2] * image.boxes[d][3]) / roi[2] ** 2
         if self.mirror and self.rng.random() < 0.5:
             crop = np.ascontiguousarray(crop[:, ::-1])
-            kp = kp[MIRROR]
-            kp[:, 0] = 1.0 - kp[:, 0]
+            kp = mirrored_back(kp[None])[0]  # a mirror's own keypoints, mapped as the runtime maps them
             vis = vis[MIRROR]
         return CropSample(self._photometric(crop), kp, vis, True, area)
 

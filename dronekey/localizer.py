@@ -158,7 +158,7 @@ class Localizer:
         shift = max(abs(nx + nside / 2 - x0 - side / 2), abs(ny + nside / 2 - y0 - side / 2)) / side
         if shift <= cfg.recut_shift and abs(nside / side - 1.0) <= cfg.recut_scale:
             return det
-        recut = self.model.detect(frame_bgr, [(nx, ny, nside)])[0]
+        recut = self.refine(frame_bgr, det)
         return recut if recut.presence >= cfg.presence_threshold else det
 
     def refine(self, frame_bgr: np.ndarray, detection: KeypointDetection) -> KeypointDetection:

@@ -272,13 +272,16 @@ class DroneKeyNet(nn.Module):
         nn.init.zeros_(self.gate.bias)
         nn.init.zeros_(self.presence.bias)
 
+    def project(self, x: torch.Tensor) -> torch.Tensor:
+        """The CNN's tokens projected to d, before normalisation and encoding: (B, P, d)."""
+        return self.projection(self.backbone(x)).flatten(2).transpose(1, 2)
+
     def forward(self, x: torch.Tensor) -> DroneKeyOutput:
         """Keypoints, presence logit and gate for a batch (B, 3, S, S) of normalised RGB crops."""
         s = self.config.input_size
         if x.dim() != 4 or tuple(x.shape[1:]) != (3, s, s):
             raise ValueError(f"x must have shape (B, 3, {s}, {s}), got {tuple(x.shape)}")
-        features = self.projection(self.backbone(x))  # (B, d, S/32, S/32)
-        projected = features.flatten(2).transpose(1, 2)  # (B, P, d)
+        projected = self.project(x)  # (B, P, d)
         tokens = self.token_norm(projected) + self.positional_encoding
         representations = []
         for layer in self.layers:

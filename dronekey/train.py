@@ -597,7 +597,7 @@ def fit_presence_head(net, batches, steps: int, lr: float = 3e-3) -> None:
     for _ in tqdm(range(steps), desc="presence head", unit="step", disable=not sys.stderr.isatty()):
         x, _kp, present, _area = next(batches)
         with torch.no_grad():
-            features = net.projection(net.backbone(x)).flatten(2).mean(dim=2)  # (B, d), as forward()
+            features = net.project(x).mean(dim=1)  # (B, d): what forward() gives the head
         loss = bce(head(features).squeeze(-1), present.float())
         opt.zero_grad(set_to_none=True)
         loss.backward()
