@@ -28,7 +28,7 @@ from dronekey.drone_spec import DroneSpec
 from dronekey.runtime import KeypointModel
 from dronekey.types import KeypointDetection
 
-__all__ = ["Localizer", "LocalizerConfig", "box_from_keypoints", "box_from_pose"]
+__all__ = ["Localizer", "LocalizerConfig", "box_from_keypoints", "box_from_pose", "propose_rois"]
 
 log = logging.getLogger(__name__)
 
@@ -180,34 +180,50 @@ class Localizer:
 
     def candidate_rois(self, frame_bgr: np.ndarray) -> list[tuple[int, int, int]]:
         """Square crops around the most salient blobs of the frame, best first."""
-        h, w = frame_bgr.shape[:2]
-        cfg = self.config
-        scale = min(1.0, cfg.work_width / w)
-        small = cv2.resize(frame_bgr, (round(w * scale), round(h * scale)), interpolation=cv2.INTER_AREA)
-        small = small.astype(np.float32)
-        background = cv2.GaussianBlur(small, (0, 0), cfg.background_sigma)
-        maps = [_max_abs_difference(small, background)]
-        if cfg.use_motion and self._prev_small is not None and self._prev_small.shape == small.shape:
-            maps.append(_max_abs_difference(small, self._prev_small))
-        self._prev_small = small
-        blobs: list[tuple[float, Box]] = []
-        max_side = cfg.max_drone_px * scale
-        for m in maps:
-            blobs.extend(_blobs(m, cfg.min_contrast, max_side, cfg.peaks_per_region))
-        blobs.sort(key=lambda b: -b[0])
-        rois, seen = [], []
-        for _, (bx, by, bw, bh) in blobs:
-            # Blob centre in edge coordinates of the small map -> full-frame pixel-centre coordinates.
-            cx, cy = (bx + bw / 2) / scale - 0.5, (by + bh / 2) / scale - 0.5
-            size = max(bw, bh) / scale
-            side = max(cfg.candidate_scale * size, float(self.crop.min_side))
-            if any(abs(cx - x) < s / 2 and abs(cy - y) < s / 2 and s / 2 < side < 2 * s for x, y, s in seen):
-                continue  # the same object seen by both maps (a small blob inside a big one stays)
-            rois.append(roi_around_box(cx, cy, side))
-            seen.append((cx, cy, side))
-            if len(rois) >= cfg.max_candidates:
-                break
+        rois, self._prev_small = propose_rois(frame_bgr, self.config, self.crop.min_side, self._prev_small)
         return rois
+
+
+def propose_rois(
+    frame_bgr: np.ndarray,
+    config: LocalizerConfig,
+    min_side: float,
+    previous_small: np.ndarray | None = None,
+) -> tuple[list[tuple[int, int, int]], np.ndarray]:
+    """Square crops (x0, y0, side) around the most salient blobs of a frame, best first.
+
+    The saliency is local contrast on a ``config.work_width`` copy of the frame, plus the change
+    since ``previous_small`` (that copy of the previous frame) when ``config.use_motion``. Returns
+    the crops and this frame's copy, for the next call. The training sampler calls it on drone-free
+    backgrounds to mine the hard negatives the daemon would propose.
+    """
+    h, w = frame_bgr.shape[:2]
+    cfg = config
+    scale = min(1.0, cfg.work_width / w)
+    small = cv2.resize(frame_bgr, (round(w * scale), round(h * scale)), interpolation=cv2.INTER_AREA)
+    small = small.astype(np.float32)
+    background = cv2.GaussianBlur(small, (0, 0), cfg.background_sigma)
+    maps = [_max_abs_difference(small, background)]
+    if cfg.use_motion and previous_small is not None and previous_small.shape == small.shape:
+        maps.append(_max_abs_difference(small, previous_small))
+    blobs: list[tuple[float, Box]] = []
+    max_side = cfg.max_drone_px * scale
+    for m in maps:
+        blobs.extend(_blobs(m, cfg.min_contrast, max_side, cfg.peaks_per_region))
+    blobs.sort(key=lambda b: -b[0])
+    rois, seen = [], []
+    for _, (bx, by, bw, bh) in blobs:
+        # Blob centre in edge coordinates of the small map -> full-frame pixel-centre coordinates.
+        cx, cy = (bx + bw / 2) / scale - 0.5, (by + bh / 2) / scale - 0.5
+        size = max(bw, bh) / scale
+        side = max(cfg.candidate_scale * size, float(min_side))
+        if any(abs(cx - x) < s / 2 and abs(cy - y) < s / 2 and s / 2 < side < 2 * s for x, y, s in seen):
+            continue  # the same object seen by both maps (a small blob inside a big one stays)
+        rois.append(roi_around_box(cx, cy, side))
+        seen.append((cx, cy, side))
+        if len(rois) >= cfg.max_candidates:
+            break
+    return rois, small
 
 
 def _max_abs_difference(a: np.ndarray, b: np.ndarray) -> np.ndarray:

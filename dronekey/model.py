@@ -33,6 +33,7 @@ from torch import nn
 from dronekey.backbones import EdgeBackbone, ResNet50Trunk
 
 __all__ = [
+    "HEADING_TWIN",
     "CheckpointError",
     "DroneKeyConfig",
     "DroneKeyNet",
@@ -49,6 +50,13 @@ PRESENCE_INPUTS = ("last_ir", "tokens")
 # Initial scale of the shared CR projection: the CR deviation from its 0.5 bias is at most about this
 # (IR is a mean of LayerNorm outputs, so |IR| <= sqrt(d)); small enough that no output starts <= 0.
 _CR_INIT_SCALE = 0.1
+
+
+HEADING_HIDDEN = 128
+# The keypoint order's 180-degree twin (1 FR, 2 RR, 3 RL, 4 FL -> 3, 4, 1, 2): the same four
+# propellers with front and back exchanged by a half turn about the body's vertical axis, which is
+# all a drone that looks the same front and back can tell apart.
+HEADING_TWIN = (2, 3, 0, 1)
 
 
 @dataclass(frozen=True)
@@ -97,6 +105,13 @@ class DroneKeyConfig:
         Edge backbone channels: stem and four stages.
     edge_depths : tuple of 4 ints
         Edge backbone separable residual blocks per stage.
+    heading_head : bool
+        Add the front/back head (not in the paper): a logit of "the keypoints come out in the
+        spec's order, not its 180-degree twin" (``HEADING_TWIN``). It reads the normalised CNN token
+        grid (where the nose, gimbal and battery are) and the predicted keypoints. Trained with it,
+        the keypoint losses take whichever of the two orders the prediction is closer to, so a crop
+        whose front cannot be told does not pull the four keypoints onto their mean; the head
+        carries the front/back decision and how sure it is (``sigmoid(heading_logit)``).
     """
 
     backbone: str = "edge"
@@ -114,6 +129,7 @@ class DroneKeyConfig:
     presence_input: str = "last_ir"
     edge_widths: tuple[int, ...] = field(default=(32, 64, 96, 160, 256))
     edge_depths: tuple[int, ...] = field(default=(1, 2, 2, 2))
+    heading_head: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "edge_widths", tuple(int(w) for w in self.edge_widths))
@@ -171,7 +187,7 @@ class DroneKeyConfig:
         normalised tokens and a sine encoding of amplitude 10 (``token_norm``, ``pe_scale``), and a
         presence head on the projected tokens (``presence_input``). The dataclass defaults are the
         paper's choices, so older checkpoints load unchanged."""
-        return cls(token_norm=True, pe_scale=10.0, presence_input="tokens")
+        return cls(token_norm=True, pe_scale=10.0, presence_input="tokens", heading_head=True)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON-able dict (tuples as lists)."""
@@ -193,11 +209,14 @@ class DroneKeyOutput(NamedTuple):
     keypoints : (B, K, 2) in normalised crop units, x then y, keypoint order of the drone spec.
     presence_logit : (B,) logit of 'this crop holds a drone' (sigmoid gives the probability).
     gate : (B, N) softmax weights of the layers' compact representations (paper Fig. 8).
+    heading_logit : (B,) logit of 'keypoints are in the spec's order, not the 180-degree twin', or
+        None without ``DroneKeyConfig.heading_head``.
     """
 
     keypoints: torch.Tensor
     presence_logit: torch.Tensor
     gate: torch.Tensor
+    heading_logit: torch.Tensor | None = None
 
 
 def sine_positional_encoding_2d(grid: int, d_model: int) -> torch.Tensor:
@@ -262,6 +281,11 @@ class DroneKeyNet(nn.Module):
         self.compact = nn.Linear(d, 2 * k)  # eq. 3, shared by all layers
         self.gate = nn.Linear(d, n)  # eq. 4
         self.presence = nn.Linear(d, 1)
+        if config.heading_head:
+            tokens_in = config.grid_size**2 * d
+            self.heading = nn.Sequential(
+                nn.Linear(tokens_in + 2 * k, HEADING_HIDDEN), nn.ReLU(), nn.Linear(HEADING_HIDDEN, 1)
+            )
         self._init_heads()
 
     def _init_heads(self) -> None:
@@ -295,7 +319,12 @@ class DroneKeyNet(nn.Module):
         keypoints = torch.relu(gated_sum).reshape(-1, self.config.num_keypoints, 2)
         presence_features = projected.mean(dim=1) if self.config.presence_input == "tokens" else last
         presence_logit = self.presence(presence_features).squeeze(-1)
-        return DroneKeyOutput(keypoints, presence_logit, gate)
+        heading_logit = None
+        if self.config.heading_head:
+            grid = self.token_norm(projected).flatten(1)  # (B, P d): the token grid keeps where things are
+            where = keypoints.detach().flatten(1)  # the head judges the order, it does not move points
+            heading_logit = self.heading(torch.cat([grid, where], dim=1)).squeeze(-1)
+        return DroneKeyOutput(keypoints, presence_logit, gate, heading_logit)
 
 
 def _encoder_layer_forward(layer: nn.TransformerEncoderLayer, x: torch.Tensor) -> torch.Tensor:

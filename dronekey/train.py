@@ -89,6 +89,7 @@ class Recipe:
     symmetric_weight: float = 0.0  # + w x (1 - progress / symmetric_until) x order-free L1, see below
     symmetric_until: float = 0.25
     presence_weight: float = 0.25
+    heading_weight: float = 0.5  # BCE of the front/back head (networks with DroneKeyConfig.heading_head)
     presence_steps: int = 0  # head-only presence steps on the best network after the epochs, see below
     val_samples: int = 1500
     patience: int = 12
@@ -230,20 +231,40 @@ def symmetric_l1(pred, gt):
     return per.min(dim=1).values.mean()
 
 
+def align_to_twin(pred, gt):
+    """The labels in whichever of the spec's order and its 180-degree twin ``pred`` is closer to.
+
+    Returns (aligned labels (B, K, 2), in_order (B,) bool: the spec's order was the closer one).
+    ``in_order`` is the front/back head's target: the head learns to tell when the points came out
+    in the twin order, and the points are not pulled onto their mean when the front is unreadable.
+    """
+    import torch
+
+    from dronekey.model import HEADING_TWIN
+
+    twin = gt[:, list(HEADING_TWIN)]
+    in_order = (pred - gt).abs().mean(dim=(1, 2)) <= (pred - twin).abs().mean(dim=(1, 2))
+    return torch.where(in_order[:, None, None], gt, twin), in_order
+
+
 # ----------------------------------------------------------------------------- evaluation
 def evaluate(net, data: dict, batch: int = 128) -> dict:
     """Keypoint metrics of ``net`` on a set of crops (normalised units; OKS is scale-free).
 
     Returns sr90, sr95, ap_kp, presence_auc (percent), median_err_px (of the network input),
     swap_rate (share of drones whose front/back order is swapped, percent), and the mean gate weights.
+    With a front/back head, keypoints are put in the head's order first, and heading_wrong (percent
+    of drones whose order is the 180-degree twin) and heading_confident_wrong (wrong with confidence
+    |2p - 1| >= 0.5) are added.
     """
     import torch
 
     from dronekey.metrics import ap_kp, oks_drone, roc_auc, sr
+    from dronekey.model import HEADING_TWIN
 
     net.eval()
     S = data["image"].shape[1]
-    kps, pres, gates = [], [], []
+    kps, pres, gates, heads = [], [], [], []
     with torch.no_grad():
         for i in range(0, len(data["image"]), batch):
             x = torch.from_numpy(
@@ -253,8 +274,23 @@ def evaluate(net, data: dict, batch: int = 128) -> dict:
             kps.append(out.keypoints.numpy())
             pres.append(torch.sigmoid(out.presence_logit).numpy())
             gates.append(out.gate.numpy())
+            if out.heading_logit is not None:
+                heads.append(torch.sigmoid(out.heading_logit).numpy())
     kp, p, gate = np.concatenate(kps), np.concatenate(pres), np.concatenate(gates)
     present = data["present"].astype(bool)
+    extra = {}
+    if heads:
+        ph = np.concatenate(heads)
+        kp = np.where((ph >= 0.5)[:, None, None], kp, kp[:, list(HEADING_TWIN)])
+        gt_all = data["keypoints"]
+        e_id = np.abs(kp - gt_all).mean(axis=(1, 2))
+        e_tw = np.abs(kp - gt_all[:, list(HEADING_TWIN)]).mean(axis=(1, 2))
+        wrong = (e_tw < e_id)[present]
+        confident = (np.abs(2 * ph - 1) >= 0.5)[present]
+        extra = {
+            "heading_wrong": 100 * float(np.mean(wrong)),
+            "heading_confident_wrong": 100 * float(np.mean(wrong & confident)),
+        }
     gt, area = data["keypoints"][present], data["area"][present]
     oks = oks_drone(kp[present], gt, area)
     err = np.linalg.norm(kp[present] - gt, axis=2) * S
@@ -268,6 +304,7 @@ def evaluate(net, data: dict, batch: int = 128) -> dict:
         "median_err_px": float(np.median(err)),
         "p90_err_px": float(np.percentile(err.mean(axis=1), 90)),
         "swap_rate": 100 * float(np.mean(swapped_err.mean(1) < err.mean(1))),
+        **extra,
         "gate": gate[present].mean(axis=0).tolist(),
     }
 
@@ -464,13 +501,21 @@ def train(args: argparse.Namespace) -> dict:
             with torch.autocast("cpu", dtype=torch.bfloat16, enabled=use_bf16):
                 out_net = net(x.contiguous(memory_format=torch.channels_last))
             pred = out_net.keypoints.float()
-            loss_kp = loss_fn(pred, kp, t_sched, present)
+            target, in_order = kp, None
+            if (
+                out_net.heading_logit is not None
+            ):  # the head decides front/back; points follow the closer order
+                target, in_order = align_to_twin(pred.detach(), kp)
+            loss_kp = loss_fn(pred, target, t_sched, present)
             if recipe.l1_weight and bool(present.any()):
-                loss_kp = loss_kp + recipe.l1_weight * (pred[present] - kp[present]).abs().mean()
+                loss_kp = loss_kp + recipe.l1_weight * (pred[present] - target[present]).abs().mean()
             w_sym = recipe.symmetric_weight * max(0.0, 1.0 - step / (recipe.symmetric_until * total_steps))
             if w_sym > 0 and bool(present.any()):
                 loss_kp = loss_kp + w_sym * symmetric_l1(pred[present], kp[present])
             loss = loss_kp + recipe.presence_weight * bce(out_net.presence_logit.float(), present.float())
+            if in_order is not None and bool(present.any()):
+                heading = out_net.heading_logit.float()[present]
+                loss = loss + recipe.heading_weight * bce(heading, in_order[present].float())
             opt.zero_grad(set_to_none=True)
             loss.backward()
             torch.nn.utils.clip_grad_norm_(params, 2.0)
@@ -522,7 +567,7 @@ def train(args: argparse.Namespace) -> dict:
         write_plots(history, out)
         log.info(
             "epoch %d: loss %.4f S %.3f | AP %.2f SR90 %.2f SR95 %.2f AUC %.2f | median %.2f px p90 %.2f px"
-            " swap %.2f%% | %.0f crops/s%s",
+            " swap %.2f%% heading wrong %.2f%% (confident %.2f%%) | %.0f crops/s%s",
             epoch + 1,
             entry["train_loss"],
             entry["scale"],
@@ -533,6 +578,8 @@ def train(args: argparse.Namespace) -> dict:
             metrics["median_err_px"],
             metrics["p90_err_px"],
             metrics["swap_rate"],
+            metrics.get("heading_wrong", float("nan")),
+            metrics.get("heading_confident_wrong", float("nan")),
             entry["samples_per_s"],
             " (best)" if improved else "",
         )

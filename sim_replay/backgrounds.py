@@ -1,5 +1,9 @@
 """Backgrounds behind the drone: procedural skies, clouds, horizons, terrain and city skylines,
-or photos from a folder the user passes.
+real photographs that installed packages ship (``packaged_photos``), or photos from a folder.
+
+The packaged photographs (scikit-image's ``skimage.data``, scikit-learn's sample images) are split
+once and for all: ``TRAIN_PHOTOS`` feed the training sampler, ``HELD_OUT_PHOTOS`` only the
+evaluation, so ``dronekey-eval robustness`` measures backgrounds the network never saw.
 
 Everything is drawn from a ``numpy.random.Generator`` so a seed gives the same pictures. The
 procedural textures are sums of bilinearly upsampled noise octaves (cheap fractal noise): enough
@@ -14,9 +18,75 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-__all__ = ["BackgroundSource", "fractal_noise", "landscape", "sky", "urban"]
+__all__ = [
+    "HELD_OUT_PHOTOS",
+    "PROCEDURAL_KINDS",
+    "TRAIN_PHOTOS",
+    "BackgroundSource",
+    "fractal_noise",
+    "landscape",
+    "packaged_photos",
+    "sky",
+    "urban",
+]
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".webp", ".tif", ".tiff")
+# Photographs that ship inside installed packages, by name: skimage.data functions, or
+# "sklearn:<file>" for scikit-learn's sample images. None needs a download.
+TRAIN_PHOTOS = (
+    "astronaut",
+    "coffee",
+    "chelsea",
+    "cat",
+    "coins",
+    "moon",
+    "brick",
+    "grass",
+    "gravel",
+    "hubble_deep_field",
+)
+HELD_OUT_PHOTOS = ("rocket", "camera", "sklearn:china.jpg", "sklearn:flower.jpg")
+PROCEDURAL_KINDS = ("sky", "landscape", "urban")
+
+
+def _load_packaged(name: str) -> np.ndarray | None:
+    """One packaged photograph as BGR uint8, or None when its package is not installed."""
+    try:
+        if name.startswith("sklearn:"):
+            from sklearn.datasets import load_sample_image
+
+            rgb = load_sample_image(name.split(":", 1)[1])
+        else:
+            import skimage.data
+
+            rgb = getattr(skimage.data, name)()
+    except (ImportError, AttributeError, OSError, ValueError):
+        return None
+    rgb = np.asarray(rgb)
+    if rgb.ndim == 2:
+        rgb = np.repeat(rgb[..., None], 3, axis=2)
+    rgb = rgb[..., :3]
+    if rgb.dtype != np.uint8:
+        rgb = (np.clip(rgb.astype(np.float64) / max(float(rgb.max()), 1e-9), 0, 1) * 255).astype(np.uint8)
+    return np.ascontiguousarray(rgb[..., ::-1])
+
+
+_PACKAGED: dict[str, np.ndarray | None] = {}
+
+
+def packaged_photos(names: tuple[str, ...] = TRAIN_PHOTOS) -> list[np.ndarray]:
+    """The packaged photographs of ``names`` that are installed (BGR uint8), loaded once per process.
+
+    scikit-image and scikit-learn come with the ``train`` and ``test`` extras; without them the list
+    is empty and the backgrounds stay procedural.
+    """
+    out = []
+    for name in names:
+        if name not in _PACKAGED:
+            _PACKAGED[name] = _load_packaged(name)
+        if _PACKAGED[name] is not None:
+            out.append(_PACKAGED[name])
+    return out
 
 
 def fractal_noise(
@@ -123,7 +193,7 @@ def urban(h: int, w: int, rng: np.random.Generator) -> np.ndarray:
 
 
 class BackgroundSource:
-    """Draws backgrounds of a requested size: procedural, or photos from ``folder`` when given.
+    """Draws backgrounds of a requested size: procedural, or photos when given.
 
     Parameters
     ----------
@@ -131,10 +201,24 @@ class BackgroundSource:
         Folder of images (searched recursively for jpg/png/bmp/webp/tiff). Photos are cropped at a
         random position and scale to the requested aspect ratio.
     photo_fraction : float
-        Share of photos among the backgrounds when a folder is given.
+        Share of photos among the backgrounds when there are photos.
+    images : list of BGR uint8 arrays, optional
+        Photos already in memory (``packaged_photos``), drawn beside the folder's.
+    kinds : tuple of str
+        Procedural kinds to draw from (``PROCEDURAL_KINDS``), at their usual odds.
     """
 
-    def __init__(self, folder: str | Path | None = None, photo_fraction: float = 0.7) -> None:
+    def __init__(
+        self,
+        folder: str | Path | None = None,
+        photo_fraction: float = 0.7,
+        images: list[np.ndarray] | None = None,
+        kinds: tuple[str, ...] = PROCEDURAL_KINDS,
+    ) -> None:
+        unknown = set(kinds) - set(PROCEDURAL_KINDS)
+        if not kinds or unknown:
+            raise ValueError(f"kinds must be a non-empty subset of {PROCEDURAL_KINDS}, got {kinds}")
+        self.images: list[np.ndarray] = list(images or [])
         self.photos: list[Path] = []
         if folder is not None:
             folder = Path(folder)
@@ -145,13 +229,16 @@ class BackgroundSource:
                 raise FileNotFoundError(
                     f"no images ({', '.join(IMAGE_SUFFIXES)}) in backgrounds folder {folder}"
                 )
-        self.photo_fraction = photo_fraction if self.photos else 0.0
-        self._kinds: list[tuple[float, Callable]] = [(0.4, sky), (0.35, landscape), (0.25, urban)]
+        self.photo_fraction = photo_fraction if (self.photos or self.images) else 0.0
+        odds = {"sky": (0.4, sky), "landscape": (0.35, landscape), "urban": (0.25, urban)}
+        self._kinds: list[tuple[float, Callable]] = [odds[k] for k in kinds]
 
     def draw(self, h: int, w: int, rng: np.random.Generator) -> np.ndarray:
         """A (h, w, 3) uint8 BGR background."""
-        if self.photos and rng.random() < self.photo_fraction:
-            img = self._photo(h, w, rng)
+        if self.photo_fraction and rng.random() < self.photo_fraction:
+            n_files = len(self.photos)
+            k = int(rng.integers(n_files + len(self.images)))
+            img = self._photo(h, w, rng, k) if k < n_files else _fit(self.images[k - n_files], h, w, rng)
             if img is not None:
                 return img
         probs = np.array([p for p, _ in self._kinds])
@@ -162,17 +249,19 @@ class BackgroundSource:
         img = (np.clip(img, 0, 1) * 255).astype(np.uint8)
         return cv2.resize(img, (w, h), interpolation=cv2.INTER_LINEAR) if half else img
 
-    def _photo(self, h: int, w: int, rng: np.random.Generator) -> np.ndarray | None:
-        path = self.photos[int(rng.integers(len(self.photos)))]
-        img = cv2.imread(str(path), cv2.IMREAD_COLOR)
-        if img is None:
-            return None
-        ih, iw = img.shape[:2]
-        s = rng.uniform(0.5, 1.0) * min(iw / w, ih / h)
-        cw, ch = max(1, int(w * s)), max(1, int(h * s))
-        x0, y0 = int(rng.integers(0, iw - cw + 1)), int(rng.integers(0, ih - ch + 1))
-        crop = img[y0 : y0 + ch, x0 : x0 + cw]
-        if rng.random() < 0.5:
-            crop = crop[:, ::-1]
-        interp = cv2.INTER_AREA if cw > w else cv2.INTER_LINEAR
-        return cv2.resize(crop, (w, h), interpolation=interp)
+    def _photo(self, h: int, w: int, rng: np.random.Generator, k: int) -> np.ndarray | None:
+        img = cv2.imread(str(self.photos[k]), cv2.IMREAD_COLOR)
+        return None if img is None else _fit(img, h, w, rng)
+
+
+def _fit(img: np.ndarray, h: int, w: int, rng: np.random.Generator) -> np.ndarray:
+    """A random part of a photo at the requested aspect ratio, maybe mirrored, resized to (h, w)."""
+    ih, iw = img.shape[:2]
+    s = rng.uniform(0.5, 1.0) * min(iw / w, ih / h)
+    cw, ch = max(1, int(w * s)), max(1, int(h * s))
+    x0, y0 = int(rng.integers(0, iw - cw + 1)), int(rng.integers(0, ih - ch + 1))
+    crop = img[y0 : y0 + ch, x0 : x0 + cw]
+    if rng.random() < 0.5:
+        crop = crop[:, ::-1]
+    interp = cv2.INTER_AREA if cw > w else cv2.INTER_LINEAR
+    return cv2.resize(np.ascontiguousarray(crop), (w, h), interpolation=interp)

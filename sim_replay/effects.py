@@ -12,6 +12,7 @@ import numpy as np
 __all__ = [
     "camera_response",
     "draw_distractors",
+    "draw_edge_clutter",
     "draw_occluder",
     "jpeg_roundtrip",
     "sensor_noise",
@@ -144,4 +145,89 @@ def draw_occluder(
     img[...] = np.clip(
         img.astype(np.float32) * (1 - m) + (np.asarray(col, np.float32) + tex) * m, 0, 255
     ).astype(np.uint8)
+    return mask > 127
+
+
+def draw_edge_clutter(img: np.ndarray, rng: np.random.Generator, count: int = 1) -> np.ndarray:
+    """Clouds, building edges, trees or wires entering ``img`` from its edges, in place.
+
+    These are what the localiser's candidates land on when no drone is there (a bright cloud rim at
+    the top of the frame, a roof corner at the side), so the network must see them at the crop's
+    edges with and without a drone. Returns the clutter's bool mask (what it covers).
+    """
+    h, w = img.shape[:2]
+    mask = np.zeros((h, w), np.uint8)
+    for _ in range(count):
+        kind = rng.choice(["cloud", "building", "tree", "wires"], p=[0.3, 0.3, 0.25, 0.15])
+        side = int(rng.integers(4))
+        # A point on one edge and the inward direction.
+        along = rng.uniform(0, 1)
+        ex, ey, nx, ny = [
+            (along * w, 0, 0, 1),
+            (along * w, h, 0, -1),
+            (0, along * h, 1, 0),
+            (w, along * h, -1, 0),
+        ][side]
+        reach = rng.uniform(0.1, 0.45) * max(h, w)
+        one = np.zeros((h, w), np.uint8)
+        if kind == "cloud":
+            for _ in range(int(rng.integers(4, 12))):
+                d = rng.uniform(0, reach)
+                cx, cy = (
+                    ex + nx * d + rng.normal(0, reach * 0.5) * ny,
+                    ey + ny * d + rng.normal(0, reach * 0.5) * nx,
+                )
+                r = reach * rng.uniform(0.2, 0.6)
+                cv2.ellipse(
+                    one, (int(cx), int(cy)), (int(r), int(r * rng.uniform(0.4, 0.9))), 0, 0, 360, 255, -1
+                )
+            col = np.full(3, rng.uniform(200, 255)) * rng.uniform(0.85, 1.0, 3) ** 0.2
+        elif kind == "building":
+            half = rng.uniform(0.15, 0.6) * max(h, w)
+            c = np.array([ex, ey]) + np.array([ny, nx]) * rng.normal(0, 0.3 * max(h, w))
+            inner = c + np.array([nx, ny]) * reach
+            t = np.array([ny, nx]) * half
+            poly = np.array(
+                [c - t - [nx * 4 * w, ny * 4 * h], inner - t, inner + t, c + t - [nx * 4 * w, ny * 4 * h]]
+            )
+            cv2.fillPoly(one, [np.round(poly).astype(np.int32)], 255, cv2.LINE_AA)
+            col = np.clip(rng.uniform(20, 200) + rng.normal(0, 12, 3), 0, 255)
+        elif kind == "tree":
+            for _ in range(int(rng.integers(6, 20))):
+                d = rng.uniform(0, reach)
+                cx, cy = (
+                    ex + nx * d + rng.normal(0, reach * 0.4) * ny,
+                    ey + ny * d + rng.normal(0, reach * 0.4) * nx,
+                )
+                r = reach * rng.uniform(0.05, 0.25)
+                ang = rng.uniform(0, 180)
+                cv2.ellipse(
+                    one, (int(cx), int(cy)), (int(r), int(r * 0.6)), ang, 0, 360, 255, -1, cv2.LINE_AA
+                )
+            col = np.clip(np.array([30, 70, 40]) * rng.uniform(0.4, 1.5) + rng.normal(0, 8, 3), 0, 255)
+        else:
+            for _ in range(int(rng.integers(1, 4))):
+                p0 = (
+                    int(rng.uniform(-0.1, 1.1) * w),
+                    int(rng.uniform(-0.1, 0.3) * h if side == 0 else rng.uniform(0, h)),
+                )
+                p1 = (int(rng.uniform(-0.1, 1.1) * w), int(rng.uniform(0, h)))
+                cv2.line(one, p0, p1, 255, max(1, int(rng.uniform(1, 0.01 * max(h, w) + 1.5))), cv2.LINE_AA)
+            col = np.full(3, rng.uniform(10, 80))
+        if kind == "cloud":  # soft edges: blur only around what was drawn
+            x, y, bw, bh = cv2.boundingRect(one)
+            pad = int(3 * max(1.0, reach * 0.08)) + 1
+            xa, ya, xb, yb = max(x - pad, 0), max(y - pad, 0), min(x + bw + pad, w), min(y + bh + pad, h)
+            if xb > xa and yb > ya:
+                one[ya:yb, xa:xb] = cv2.GaussianBlur(one[ya:yb, xa:xb], (0, 0), max(1.0, reach * 0.08))
+        x, y, bw, bh = cv2.boundingRect(one)
+        if bw == 0 or bh == 0:
+            continue
+        region = (slice(y, y + bh), slice(x, x + bw))
+        m = (one[region].astype(np.float32) / 255.0)[..., None]
+        tex = rng.normal(0, 8, (bh, bw, 3)).astype(np.float32) if kind != "cloud" else 0.0
+        f = img[region].astype(np.float32)
+        f = f * (1 - m) + (np.asarray(col, np.float32) + tex) * m
+        img[region] = np.clip(f, 0, 255).astype(np.uint8)
+        mask[region] = np.maximum(mask[region], one[region])
     return mask > 127

@@ -42,6 +42,17 @@ class Lighting:
     color: tuple[float, float, float] = (1.0, 1.0, 1.0)
 
     @classmethod
+    def backlit(cls, rng: np.random.Generator) -> Lighting:
+        """Sun behind the drone: almost no light on the faces the camera sees (a near-silhouette)."""
+        d = np.array([rng.uniform(-0.5, 0.5), rng.uniform(-0.5, 0.2), 1.0])
+        return cls(
+            direction=tuple(d / np.linalg.norm(d)),
+            ambient=float(rng.uniform(0.03, 0.2)),
+            diffuse=float(rng.uniform(0.0, 0.3)),
+            specular=float(rng.uniform(0.0, 0.1)),
+        )
+
+    @classmethod
     def random(cls, rng: np.random.Generator) -> Lighting:
         """Sun mostly from above (camera -y), any azimuth; overcast to harsh; warm to cool."""
         d = np.array([rng.uniform(-1, 1), rng.uniform(-1.6, 0.3), rng.uniform(-1, 0.6)])
@@ -56,8 +67,13 @@ class Lighting:
         )
 
 
-def _shade(base: np.ndarray, normals: np.ndarray, centres: np.ndarray, light: Lighting) -> np.ndarray:
-    """Lambert + Phong colours (F, 3) in [0, 1] of faces with unit ``normals`` at ``centres`` (camera)."""
+def _shade(
+    base: np.ndarray, normals: np.ndarray, centres: np.ndarray, light: Lighting, gloss: float = 1.0
+) -> np.ndarray:
+    """Lambert + Phong colours (F, 3) in [0, 1] of faces with unit ``normals`` at ``centres`` (camera).
+
+    ``gloss`` scales the highlight: 0 for a matt livery, above 1 for a glossy one.
+    """
     ldir = np.asarray(light.direction)
     ndotl = normals @ ldir
     lam = np.maximum(ndotl, 0.0)
@@ -65,7 +81,7 @@ def _shade(base: np.ndarray, normals: np.ndarray, centres: np.ndarray, light: Li
     refl = 2 * ndotl[:, None] * normals - ldir
     spec = np.where(lam > 0, np.maximum(np.einsum("ij,ij->i", refl, view), 0.0) ** 12, 0.0)
     c = base * (light.ambient + light.diffuse * lam[:, None]) * np.asarray(light.color)
-    return np.clip(c + light.specular * spec[:, None], 0, 1)
+    return np.clip(c + gloss * light.specular * spec[:, None], 0, 1)
 
 
 def render_drone(
@@ -148,8 +164,17 @@ def _draw_layer(
     kinds = np.array([mesh.parts[k].kind for k in mesh.face_part])
     front = (np.einsum("ij,ij->i", normals, centres) < 0) | (kinds == PROP)  # cull back faces
     base = np.array([style.colour_of(p.role) for p in mesh.parts])[mesh.face_part]
+    if style.camo:  # camouflage: body, underside and arm faces painted from the palette, face by face
+        roles = np.array([mesh.parts[k].role for k in mesh.face_part])
+        painted = np.isin(roles, ("body", "underside", "arms"))
+        palette = np.asarray(style.camo, dtype=np.float64)
+        pick = (np.arange(len(base)) * 7919 + 13) % len(palette)
+        base = np.where(painted[:, None], palette[pick], base)
+    # A lit LED glows (unshaded); an unlit one (its colour None) is a dark housing like any part.
+    lit_part = [p.kind == EMISSIVE and getattr(style, p.role) is not None for p in mesh.parts]
+    lit = np.asarray(lit_part, dtype=bool)[mesh.face_part]
     colours = np.where(
-        (kinds == EMISSIVE)[:, None], np.clip(base * 1.15, 0, 1), _shade(base, normals, centres, lighting)
+        lit[:, None], np.clip(base * 1.15, 0, 1), _shade(base, normals, centres, lighting, style.gloss)
     )
     scale = float(1 << _SHIFT)
     for fi in np.flatnonzero(front)[np.argsort(-centres[front, 2], kind="stable")]:

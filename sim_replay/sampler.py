@@ -6,8 +6,17 @@ its box with ``dronekey.crop.CropPolicy``'s scale and jitter, and resized to the
 Instead of rendering the whole 1080p frame, the drone is rendered straight into the crop through an
 equivalent camera (the full camera's intrinsics shifted and scaled to the crop), at the crop's
 native resolution capped at twice the input size; background, blur and noise are applied at that
-resolution, then the crop is resized exactly as ``crop_square`` would. About 1 in 10 samples has no
-drone (for the presence score).
+resolution, then the crop is resized exactly as ``crop_square`` would.
+
+No look decides: every drone gets a random body (``BodyShape.random``) and livery
+(``DroneStyle.random``: LEDs absent on 45 % of drones, otherwise any colours either way round,
+sometimes in their off phase), some are backlit near-silhouettes against a brightened sky, and
+backgrounds mix procedural skies, terrain and cities with the packaged photographs
+(``backgrounds.TRAIN_PHOTOS``) and any ``backgrounds`` folder. Clouds, building edges, trees and
+wires enter the crops from their edges. A fifth of the samples have no drone (for the presence
+score): random crops, crops running far past the frame edge (black padding), and hard negatives:
+the crops the localiser's own saliency search (``localizer.propose_rois``) proposes on drone-free
+backgrounds.
 """
 
 from __future__ import annotations
@@ -26,14 +35,22 @@ from dronekey.drone_spec import load_spec
 from dronekey.rotations import ned_from_camera, rotation_from_euler_deg
 
 from .annotations import HIDDEN
-from .backgrounds import BackgroundSource
-from .effects import camera_response, draw_distractors, draw_occluder, jpeg_roundtrip, sensor_noise
-from .mesh import DroneStyle, build_mesh
+from .backgrounds import TRAIN_PHOTOS, BackgroundSource, packaged_photos
+from .effects import (
+    camera_response,
+    draw_distractors,
+    draw_edge_clutter,
+    draw_occluder,
+    jpeg_roundtrip,
+    sensor_noise,
+)
+from .mesh import BodyShape, DroneStyle, build_mesh
 from .renderer import Lighting, render_drone
 
 __all__ = ["CropSample", "CropSampler", "SamplerConfig"]
 
 FRAME_W, FRAME_H = 1920, 1080
+MESH_POOL, MESH_RENEW = 256, 0.08
 
 
 @dataclass(frozen=True)
@@ -42,7 +59,13 @@ class SamplerConfig:
 
     crop: CropPolicy = field(default_factory=CropPolicy)
     size_px: tuple[float, float] = (30.0, 600.0)
-    negative_fraction: float = 0.1
+    negative_fraction: float = 0.2
+    padded_negative_fraction: float = 0.3  # of the negatives: crops running far past the frame edge
+    mined_negative_fraction: float = 0.35  # of the negatives: the localiser's proposals on empty frames
+    edge_clutter_prob: float = 0.35
+    backlit_prob: float = 0.1
+    led_off_phase_prob: float = 0.1  # a lit drone caught with its (blinking) LEDs off
+    photo_fraction: float = 0.3  # packaged photographs among the backgrounds (0.7 with a folder)
     uniform_rotation_fraction: float = 0.2
     drones: tuple[tuple[str, float], ...] = (("mini2", 0.75), ("air2s", 0.25))
     hfov_deg: tuple[float, float] = (50.0, 90.0)
@@ -103,28 +126,36 @@ class CropSampler:
     ) -> None:
         self.config = config or SamplerConfig()
         self.rng = np.random.default_rng(seed)
-        self._bg_source = BackgroundSource(backgrounds)
+        photos = packaged_photos(TRAIN_PHOTOS)
+        fraction = 0.7 if backgrounds is not None else self.config.photo_fraction
+        self._bg_source = BackgroundSource(backgrounds, photo_fraction=fraction, images=photos)
         self._pool_size = max(1, pool_size)
         self._pool: list[np.ndarray] = []
+        self._proposals: list[list[tuple[int, int, int]]] = []  # localiser crops per pool background
+        from dronekey.localizer import LocalizerConfig
+
+        self._localizer_config = LocalizerConfig(use_motion=False)
         self._refresh_every = max(1, refresh_every)
         self._count = 0
         names = [n for n, _ in self.config.drones]
         probs = np.array([p for _, p in self.config.drones], dtype=np.float64)
         self._specs = [load_spec(n) for n in names]
         self._spec_p = probs / probs.sum()
+        self._meshes: dict[str, list] = {spec.name: [] for spec in self._specs}  # see _mesh
 
     # ------------------------------------------------------------------ public
     def sample(self) -> CropSample:
         """One sample (a drone with probability 1 - negative_fraction)."""
         self._count += 1
-        bg = self._background()
+        k = self._background()
+        bg = self._pool[k]
         if self.rng.random() < self.config.negative_fraction:
-            return self._negative(bg)
+            return self._negative(bg, self._proposals[k])
         for _ in range(20):  # a pose can land fully outside the frame; draw again
             out = self._positive(bg)
             if out is not None:
                 return out
-        return self._negative(bg)
+        return self._negative(bg, self._proposals[k])
 
     def batch(self, n: int) -> dict[str, np.ndarray]:
         """``n`` samples stacked: image (n,S,S,3) uint8, keypoints (n,4,2), visibility, present, area."""
@@ -138,15 +169,29 @@ class CropSampler:
         }
 
     # ------------------------------------------------------------------ internals
-    def _background(self) -> np.ndarray:
+    def _background(self) -> int:
+        """Index of a pool background (1080p BGR), the pool refreshed one at a time."""
         if len(self._pool) < self._pool_size:
-            self._pool.append(self._bg_source.draw(FRAME_H, FRAME_W, self.rng))
-            return self._pool[-1]
+            self._pool.append(self._new_background())
+            self._proposals.append(self._propose(self._pool[-1]))
+            return len(self._pool) - 1
         if self._count % self._refresh_every == 0:
-            self._pool[int(self.rng.integers(self._pool_size))] = self._bg_source.draw(
-                FRAME_H, FRAME_W, self.rng
-            )
-        return self._pool[int(self.rng.integers(self._pool_size))]
+            k = int(self.rng.integers(self._pool_size))
+            self._pool[k] = self._new_background()
+            self._proposals[k] = self._propose(self._pool[k])
+        return int(self.rng.integers(self._pool_size))
+
+    def _new_background(self) -> np.ndarray:
+        bg = self._bg_source.draw(FRAME_H, FRAME_W, self.rng)
+        if self.rng.random() < 0.5:  # clutter at the frame's edges, where candidates end up
+            draw_edge_clutter(bg, self.rng, int(self.rng.integers(1, 3)))
+        return bg
+
+    def _propose(self, bg: np.ndarray) -> list[tuple[int, int, int]]:
+        from dronekey.localizer import propose_rois
+
+        rois, _ = propose_rois(bg, self._localizer_config, self.config.crop.min_side)
+        return rois
 
     def _camera(self) -> CameraModel:
         k1 = self.rng.uniform(-0.15, 0.03)
@@ -177,7 +222,11 @@ class CropSampler:
         t = z * np.array([(u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy, 1.0])
         R = self._rotation()
         style = DroneStyle.random(rng)
-        mesh = build_mesh(spec)
+        mesh = self._mesh(spec)
+        if rng.random() < cfg.led_off_phase_prob:
+            style = style.with_leds("off")
+        backlit = rng.random() < cfg.backlit_prob
+        lighting = Lighting.backlit(rng) if backlit else Lighting.random(rng)
         # The drone's true box in the full frame (every part, clipped to the frame) fixes the crop,
         # exactly as the evaluation crops around the annotated box.
         box = _clip_box(camera.project_body(mesh.vertices, R, t))
@@ -196,12 +245,15 @@ class CropSampler:
         crop_cam = CameraModel(r, r, K, camera.dist)
 
         img = _cut(bg, roi, r)
+        if backlit:  # a bright sky behind the drone: lift the background towards white
+            lift = rng.uniform(0.4, 0.85)
+            img[...] = (255 - (255 - img.astype(np.float32)) * (1 - lift)).astype(np.uint8)
         blur = (0.0, 0.0)
         if rng.random() < cfg.motion_blur_prob:
             ang, length = rng.uniform(0, 2 * math.pi), rng.uniform(0, 0.12) * size * s
             blur = (length * math.cos(ang), length * math.sin(ang))
         defocus = rng.uniform(0.3, 0.02 * size * s + 0.5) if rng.random() < cfg.defocus_prob else 0.0
-        ann = render_drone(img, crop_cam, mesh, R, t, style, Lighting.random(rng), blur, defocus)
+        ann = render_drone(img, crop_cam, mesh, R, t, style, lighting, blur, defocus)
         if ann is None:
             return None
         _blank_outside_frame(img, roi, s)
@@ -215,33 +267,58 @@ class CropSampler:
         area = box[2] * box[3] / side**2
         return CropSample(img, kp, vis, True, float(area))
 
-    def _negative(self, bg: np.ndarray) -> CropSample:
+    def _negative(self, bg: np.ndarray, proposals: list[tuple[int, int, int]]) -> CropSample:
         rng, cfg = self.rng, self.config
         S = cfg.crop.input_size
-        side = int(math.exp(rng.uniform(math.log(cfg.size_px[0] * cfg.crop.scale), math.log(cfg.size_px[1]))))
-        x0 = int(rng.integers(-side // 4, FRAME_W - side + side // 4 + 1))
-        y0 = int(rng.integers(-side // 4, max(FRAME_H - side + side // 4, -side // 4) + 1))
+        kind = rng.random()
+        if proposals and kind < cfg.mined_negative_fraction:
+            # What the localiser would hand the network on this drone-free frame, jittered a little.
+            x0, y0, side = proposals[int(rng.integers(len(proposals)))]
+            d = side * rng.uniform(-0.08, 0.08, 2)
+            side = max(int(side * rng.uniform(0.85, 1.15)), 8)
+            x0, y0 = int(x0 + d[0]), int(y0 + d[1])
+        else:
+            side = int(
+                math.exp(rng.uniform(math.log(cfg.size_px[0] * cfg.crop.scale), math.log(cfg.size_px[1])))
+            )
+            over = 0.6 if kind > 1.0 - cfg.padded_negative_fraction else 0.25  # past the frame edge
+            lo = int(-side * over)
+            x0 = int(rng.integers(lo, FRAME_W - side - lo + 1))
+            y0 = int(rng.integers(lo, max(FRAME_H - side - lo, lo) + 1))
         roi = (x0, y0, side)
         r = int(min(side, cfg.render_cap * S))
         s = r / side
         img = _cut(bg, roi, r)
         if rng.random() < 0.6:
             draw_distractors(img, rng, int(rng.integers(1, 4)), (0.05 * r, 0.5 * r))
+        if rng.random() < 0.5:
+            draw_edge_clutter(img, rng)
         _blank_outside_frame(img, roi, s)
         img = _resize(self._camera_effects(img), S)
         return CropSample(img, np.zeros((4, 2), np.float32), np.zeros(4, np.int64), False, 0.0)
+
+    def _mesh(self, spec):
+        """A random body for ``spec``: from a pool of ``MESH_POOL`` shapes, one replaced by a new
+        shape in ``MESH_RENEW`` of the draws (building a mesh costs as much as rendering it)."""
+        pool = self._meshes[spec.name]
+        if len(pool) < MESH_POOL:
+            pool.append(build_mesh(spec, BodyShape.random(self.rng)))
+            return pool[-1]
+        k = int(self.rng.integers(MESH_POOL))
+        if self.rng.random() < MESH_RENEW:
+            pool[k] = build_mesh(spec, BodyShape.random(self.rng))
+        return pool[k]
 
     def _clutter(self, img: np.ndarray, box, kp: np.ndarray, vis: np.ndarray, size: float) -> None:
         rng, cfg = self.rng, self.config
         if rng.random() < cfg.distractor_prob:
             draw_distractors(img, rng, int(rng.integers(1, 4)), (0.08 * size, 0.6 * size))
+        if rng.random() < cfg.edge_clutter_prob:
+            mask = draw_edge_clutter(img, rng)
+            _hide_covered(vis, kp, mask)
         if rng.random() < cfg.occlusion_prob:
             mask = draw_occluder(img, rng, box, cover=rng.uniform(0.05, 0.4))
-            h, w = mask.shape
-            for i, (u, v) in enumerate(kp):
-                iu, iv = int(round(u)), int(round(v))
-                if 0 <= iu < w and 0 <= iv < h and mask[iv, iu]:
-                    vis[i] = HIDDEN
+            _hide_covered(vis, kp, mask)
 
     def _camera_effects(self, img: np.ndarray) -> np.ndarray:
         rng, cfg = self.rng, self.config
@@ -251,6 +328,15 @@ class CropSampler:
         if rng.random() < cfg.jpeg_prob:
             img = jpeg_roundtrip(img, int(rng.integers(30, 96)))
         return img
+
+
+def _hide_covered(vis: np.ndarray, kp: np.ndarray, mask: np.ndarray) -> None:
+    """Flag the keypoints (crop pixels) that fall on a covering mask as hidden, in place."""
+    h, w = mask.shape
+    for i, (u, v) in enumerate(kp):
+        iu, iv = int(round(u)), int(round(v))
+        if 0 <= iu < w and 0 <= iv < h and mask[iv, iu]:
+            vis[i] = HIDDEN
 
 
 def _clip_box(uv: np.ndarray) -> tuple[float, float, float, float] | None:
