@@ -24,7 +24,7 @@ from tqdm import tqdm
 from dronekey.camera import CalibrationError
 from dronekey.drone_spec import DroneSpecError
 from dronekey.sim_replay.frames import FrameSourceError, iter_frames
-from dronekey.sim_replay.presets import PRESETS, build_sequence
+from dronekey.sim_replay.presets import BACKGROUND_KINDS, FLIGHT_MODELS, LED_MODES, PRESETS, build_sequence
 from dronekey.sim_replay.sequence_io import (
     ROTATION_ENCODINGS,
     TRANSLATION_UNITS,
@@ -73,6 +73,16 @@ def _seed(text: str) -> int:
     return value
 
 
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a positive number, got {text!r}") from None
+    if not 0 < value < float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a positive number, got {text!r}")
+    return value
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _OneLineParser(
         prog=PROG,
@@ -86,6 +96,9 @@ def build_parser() -> argparse.ArgumentParser:
             "examples:\n"
             "  dronekey-sim --preset seq13 --out out --frames 40\n"
             "  dronekey-sim --preset 2dronekey --out data --seed 7 --width 960 --height 540 --images\n"
+            "  dronekey-sim --preset seq12 --out eval --style-seed 3 --leds off --range-scale 2.5\n"
+            "  dronekey-sim --preset seq13 --out eval --flight coordinated --background photos\n"
+            "  dronekey-sim --preset seq11 --out negatives --no-drone --background urban\n"
             "  dronekey-sim --verify out/seq13.json\n"
             "  dronekey-sim --verify 3DronePose/seq13.json --media 3DronePose/images --calib camera.yaml\n"
             "\n"
@@ -119,9 +132,58 @@ def build_parser() -> argparse.ArgumentParser:
         type=_positive_int,
         help="frame height in pixels (with --width; default 1080)",
     )
-    render.add_argument("--backgrounds", metavar="DIR", type=Path, help="folder of background images to use")
+    render.add_argument(
+        "--backgrounds",
+        metavar="DIR",
+        type=Path,
+        help="folder of background photos, used for 70%% of the seeds (not with --background photos)",
+    )
     render.add_argument(
         "--images", action="store_true", help="write OUT/<preset>/NNNNNN.png instead of a video"
+    )
+
+    conditions = parser.add_argument_group("conditions (--preset)")
+    conditions.add_argument(
+        "--style-seed",
+        metavar="N",
+        type=_seed,
+        help="seed of the drone's look: random body, livery, LEDs and blinking (default: derived "
+        "from --seed, recorded in the JSON); changes the drone, never its path",
+    )
+    conditions.add_argument(
+        "--leds",
+        choices=LED_MODES,
+        default="random",
+        help="drone LEDs: red-front (red front, green rear), green-front (the other way round), off "
+        "(unlit) or random (default: the style's own; absent on 45%% of the drones); lit LEDs blink "
+        "at 1-2 Hz on a quarter of the style seeds",
+    )
+    conditions.add_argument(
+        "--no-drone",
+        action="store_true",
+        help="drone-free sequence (no annotations): edge clutter, moving birds, flying objects and clouds",
+    )
+    conditions.add_argument(
+        "--flight",
+        choices=FLIGHT_MODELS,
+        default="scripted",
+        help="drone attitude: scripted (default: the preset's) or coordinated (nose along the velocity, "
+        "tilted along the acceleration as a real quadcopter flies the same path)",
+    )
+    conditions.add_argument(
+        "--background",
+        choices=BACKGROUND_KINDS,
+        default="procedural",
+        help="background kind: procedural (default: skies, terrain, cities), sky, urban, or photos (the "
+        "held-out packaged photos training never sees; needs scikit-image or scikit-learn)",
+    )
+    conditions.add_argument(
+        "--range-scale",
+        metavar="X",
+        type=_positive_float,
+        default=1.0,
+        help="put the drone X times as far from the camera on the same bearing (default 1; 2.5 draws "
+        "it about 30-60 px across at 1920x1080)",
     )
 
     verify = parser.add_argument_group("checking (--verify)")
@@ -180,6 +242,13 @@ def _list_presets() -> int:
     return 0
 
 
+def _cli_message(message: str) -> str:
+    """A build_sequence error in the CLI's words (option names instead of keyword names)."""
+    return message.replace("background 'photos'", "--background photos").replace(
+        "a backgrounds folder", "--backgrounds"
+    )
+
+
 def _render(args: argparse.Namespace) -> int:
     if args.preset not in PRESETS:
         raise UsageError(f"unknown preset {args.preset!r}; valid presets: {', '.join(PRESETS)}")
@@ -194,9 +263,15 @@ def _render(args: argparse.Namespace) -> int:
             width=width,
             height=height,
             backgrounds=args.backgrounds,
+            style_seed=args.style_seed,
+            leds=args.leds,
+            no_drone=args.no_drone,
+            flight=args.flight,
+            background=args.background,
+            range_scale=args.range_scale,
         )
-    except (ValueError, OSError) as exc:  # the presets' own checks: sizes, frames, backgrounds folder
-        raise UsageError(str(exc)) from None
+    except (ValueError, OSError, ImportError) as exc:  # the presets' own checks (sizes, frames, folders)
+        raise UsageError(_cli_message(str(exc))) from None
     _check_output_folder(args.out)
     with tqdm(total=seq.n_frames, unit="frame", desc=seq.name, disable=None, leave=False) as bar:
         try:
