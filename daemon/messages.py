@@ -34,6 +34,7 @@ if TYPE_CHECKING:
 __all__ = [
     "SCHEMA_NAMES",
     "check_camera_id",
+    "check_heading_confidence",
     "info_message",
     "jsonable",
     "key_expressions",
@@ -53,6 +54,8 @@ _STATUS_REQUIRED = ("healthy", "uptime_s", "fps", "source")
 _STATUS_OPTIONAL = ("latency_ms", "frames", "model", "tracks_active", "sinks")
 _SOURCE_KEYS = ("state", "uri", "reconnects", "error")
 _MODEL_KEYS = ("name", "path", "sha256")
+# Float rounding a tracker may leave outside [0, 1]; clipped, not refused.
+_HEADING_TOLERANCE = 1e-6
 
 
 # --------------------------------------------------------------------------- schemas and names
@@ -142,6 +145,38 @@ def _bearing_deg(forward: float, right: float, up: float) -> dict[str, float | N
     }
 
 
+def check_heading_confidence(value: Any) -> float:
+    """A track's ``heading_confidence`` checked: a float in [0, 1], or NaN when unknown.
+
+    Parameters
+    ----------
+    value : float or None
+        How sure the tracker is that the drone's front is its front and not its back (the
+        180-degree twin about the body's vertical axis): 0 a coin flip, 1 certain. None and
+        non-finite values mean "unknown" (a model without a front/back head).
+
+    Returns
+    -------
+    float
+        ``value`` in [0, 1] (rounding excess up to 1e-6 clipped), or NaN.
+
+    Raises
+    ------
+    ValueError
+        Naming ``heading_confidence`` and the value, if it is finite and outside [0, 1].
+    """
+    allowed = "a number in [0, 1], or NaN / None (unknown)"
+    try:
+        number = _number(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"heading_confidence must be {allowed}, got {value!r}") from None
+    if number is None:
+        return math.nan
+    if not -_HEADING_TOLERANCE <= number <= 1.0 + _HEADING_TOLERANCE:
+        raise ValueError(f"heading_confidence must be {allowed}, got {value!r}")
+    return min(max(number, 0.0), 1.0)
+
+
 def track_message(track: Track, camera_id: str, camera_geo: CameraGeo | None = None) -> dict:
     """The JSON message of one track update (schema ``track``).
 
@@ -158,7 +193,13 @@ def track_message(track: Track, camera_id: str, camera_geo: CameraGeo | None = N
     Returns
     -------
     dict of plain JSON values; ``range_m`` and ``bearing`` (azimuth right of and elevation above the
-    optical axis, degrees) are derived from ``position_m``.
+    optical axis, degrees) are derived from ``position_m``; ``heading_confidence`` is in [0, 1]
+    (0: the front may as well be the back, 1: certain), None when unknown.
+
+    Raises
+    ------
+    ValueError
+        Naming the field whose shape or value is wrong (``position_m``, ``heading_confidence``, ...).
     """
     p = np.asarray(track.position_m, dtype=np.float64).reshape(-1)
     if p.shape != (3,):
@@ -178,6 +219,7 @@ def track_message(track: Track, camera_id: str, camera_geo: CameraGeo | None = N
         "keypoints_px": keypoints,
         "score": _number(track.score),
         "reprojection_px": _number(track.reprojection_px),
+        "heading_confidence": _number(check_heading_confidence(track.heading_confidence)),
         "hits": int(track.hits),
         "age_s": _number(track.age_s),
         "range_m": _number(np.linalg.norm(p)),

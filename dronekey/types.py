@@ -35,11 +35,20 @@ class KeypointDetection:
     presence : probability in [0, 1] that the crop holds a drone.
     roi : (x0, y0, side) of the square crop in full-frame pixels: column and row of its top-left
         pixel and its side, integers (see ``dronekey.crop``).
+    heading_p : probability in [0.5, 1] the network gives to ``keypoints_px`` being in the spec's
+        order rather than its 180-degree twin (front and back exchanged); NaN for a model without a
+        front/back head. ``heading_confidence`` is 2 p - 1: 0 a coin flip, 1 certain.
     """
 
     keypoints_px: np.ndarray
     presence: float
     roi: tuple[int, int, int]
+    heading_p: float = float("nan")
+
+    @property
+    def heading_confidence(self) -> float:
+        """How sure the network is of the front/back order, in [0, 1] (NaN: no front/back head)."""
+        return 2.0 * self.heading_p - 1.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -92,6 +101,10 @@ class Track:
     keypoints_px : (4, 2) last measured keypoints in full-frame pixels, or None while coasting.
     score : presence score of the last measurement in [0, 1].
     reprojection_px : RMS reprojection error of the last measurement, pixels.
+    heading_confidence : how sure the track is that its front is the drone's front and not the back
+        (the 180-degree twin about the body's vertical axis), in [0, 1]: 0 no idea, 1 certain; NaN
+        when the model has no front/back head. ``rotation_std_rad`` and the orientation covariance
+        already include the doubt (up to pi / 2 rad of yaw while it is a coin flip).
     """
 
     track_id: int
@@ -107,3 +120,4 @@ class Track:
     reprojection_px: float = float("nan")
     hits: int = 0
     age_s: float = 0.0
+    heading_confidence: float = float("nan")

@@ -3,6 +3,7 @@ the sink sends and sends it commands, signed and unsigned."""
 
 from __future__ import annotations
 
+import math
 import select
 import socket
 import time
@@ -99,7 +100,9 @@ def make_sink(dialect, tmp_path):
         sink.close()
 
 
-def make_track(track_id=7, status=TrackStatus.CONFIRMED, p=(1.0, -2.0, 30.0)) -> Track:
+def make_track(
+    track_id=7, status=TrackStatus.CONFIRMED, p=(1.0, -2.0, 30.0), heading_confidence=1.0
+) -> Track:
     R = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
     return Track(
         track_id=track_id,
@@ -110,6 +113,7 @@ def make_track(track_id=7, status=TrackStatus.CONFIRMED, p=(1.0, -2.0, 30.0)) ->
         position_cov=np.diag([0.01, 0.04, 0.25]),
         quaternion_wxyz=matrix_to_quat_wxyz(R),
         rotation_std_rad=np.array([0.01, 0.02, 0.03]),
+        heading_confidence=heading_confidence,
     )
 
 
@@ -150,6 +154,25 @@ def test_heartbeat_and_target_relative(make_sink, gcs, dialect):
     assert list(m.q_sensor) == [0, 0, 0, 0]  # no camera geo: sensor attitude unknown
     assert abs(m.timestamp - time.time_ns() // 1000) < 10_000_000
     assert not [x for x in got if x.get_type() in ("TARGET_ABSOLUTE", "ADSB_VEHICLE")]  # need camera geo
+
+
+def test_yaw_std_reaches_the_ground_station_with_the_front_back_doubt(make_sink, gcs):
+    sink = make_sink(gcs.url)
+    connect(sink, gcs)
+    tracks = (
+        make_track(track_id=1, heading_confidence=1.0),
+        make_track(track_id=2, heading_confidence=0.82),
+        make_track(track_id=3, heading_confidence=0.0),
+        make_track(track_id=4, heading_confidence=float("nan")),  # a model without a front/back head
+    )
+    sink.handle_update(update(*tracks))
+    got = {m.id: m for m in gcs.collect(0.5) if m.get_type() == "TARGET_RELATIVE"}
+    assert sorted(got) == [1, 2, 3, 4]
+    assert got[1].yaw_std == pytest.approx(0.02)
+    assert got[2].yaw_std == pytest.approx(math.pi * math.sqrt(0.91 * 0.09), rel=1e-6)
+    assert got[3].yaw_std == pytest.approx(math.pi / 2, rel=1e-6)
+    assert got[4].yaw_std == pytest.approx(math.pi / 2, rel=1e-6)
+    assert len({tuple(m.q_target) for m in got.values()}) == 1  # same attitude; only the doubt differs
 
 
 def test_geodetic_messages_with_camera_geo(make_sink, gcs):

@@ -40,7 +40,7 @@ def dialect(tmp_path_factory):
     return load_dialect(tmp_path_factory.mktemp("mavlink-dialect"))
 
 
-def make_track(R=None, p=(1.0, -2.0, 30.0), v=(0.5, 0.0, -1.0), track_id=7) -> Track:
+def make_track(R=None, p=(1.0, -2.0, 30.0), v=(0.5, 0.0, -1.0), track_id=7, heading_confidence=1.0) -> Track:
     R = np.eye(3) if R is None else R
     return Track(
         track_id=track_id,
@@ -51,6 +51,7 @@ def make_track(R=None, p=(1.0, -2.0, 30.0), v=(0.5, 0.0, -1.0), track_id=7) -> T
         position_cov=np.diag([0.01, 0.04, 0.25]),
         quaternion_wxyz=matrix_to_quat_wxyz(R),
         rotation_std_rad=np.array([0.01, 0.02, 0.03]),
+        heading_confidence=heading_confidence,
     )
 
 
@@ -141,6 +142,77 @@ def test_target_relative_without_geo_or_attitude(dialect):
     msg = messages.target_relative(dialect, track, messages.sensor_quaternion(None), 1)
     assert list(msg.q_sensor) == [0, 0, 0, 0] and list(msg.q_target) == [0, 0, 0, 0]
     assert messages.target_relative(dialect, make_track(track_id=300), (0, 0, 0, 0), 1).id == 300 % 256
+
+
+def _wire(dialect, msg):
+    """``msg`` packed into MAVLink 2 bytes by pymavlink and parsed back."""
+    mav = dialect.MAVLink(None, srcSystem=42, srcComponent=191)
+    buf = msg.pack(mav)
+    assert buf[0] == 0xFD  # MAVLink 2
+    return dialect.MAVLink(None).decode(bytearray(buf))
+
+
+def _yaw(R: np.ndarray) -> float:
+    """Yaw (ZYX Euler) of a body -> frame rotation: heading of the body's x axis, rad."""
+    return math.atan2(R[1, 0], R[0, 0])
+
+
+def test_heading_flip_yaw_std_is_the_two_point_mixture_std():
+    for confidence in (0.0, 0.3, 0.82, 1.0):
+        q = 0.5 * (1.0 + confidence)
+        yaws, weights = np.array([0.0, math.pi]), np.array([q, 1.0 - q])  # published yaw, its twin
+        mean = weights @ yaws
+        std = math.sqrt(weights @ (yaws - mean) ** 2)
+        assert messages.heading_flip_yaw_std(confidence) == pytest.approx(std, abs=1e-12)
+    assert messages.heading_flip_yaw_std(0.0) == pytest.approx(math.pi / 2)  # a coin flip
+    assert messages.heading_flip_yaw_std(1.0) == 0.0
+    assert messages.heading_flip_yaw_std(float("nan")) == pytest.approx(math.pi / 2)  # unknown: coin flip
+    with pytest.raises(ValueError, match=r"heading_confidence .* got 1\.5"):
+        messages.heading_flip_yaw_std(1.5)
+
+
+def test_the_twin_yaw_differs_by_pi_whatever_the_tilt(dialect):
+    # The front/back twin is R @ Rz(pi): its yaw in the sensor's FRD frame is yaw + pi for any attitude
+    # and any camera tilt, which is what makes the two-point mixture of heading_flip_yaw_std exact.
+    rng = np.random.default_rng(11)
+    Rz_pi = np.diag([-1.0, -1.0, 1.0])
+    for _ in range(20):
+        R = random_rotation(rng)
+        msg = messages.target_relative(dialect, make_track(R=R), (0, 0, 0, 0), 1)
+        twin = messages.target_relative(dialect, make_track(R=R @ Rz_pi), (0, 0, 0, 0), 1)
+        d = _yaw(quat_wxyz_to_matrix(np.array(twin.q_target))) - _yaw(
+            quat_wxyz_to_matrix(np.array(msg.q_target))
+        )
+        assert math.remainder(d - math.pi, 2 * math.pi) == pytest.approx(0.0, abs=1e-5)
+
+
+@pytest.mark.parametrize(
+    ("confidence", "rotation_std", "yaw_std"),
+    [
+        (1.0, 0.02, 0.02),  # certain: the filter's own std
+        (0.0, 0.02, math.pi / 2),  # coin flip: pi / 2 at least
+        (float("nan"), 0.02, math.pi / 2),  # no front/back head: as unsure as a coin flip
+        (0.82, 0.02, math.pi * math.sqrt(0.91 * 0.09)),
+        (0.0, 1.8, 1.8),  # the tracker folded the doubt in already: not added a second time
+        (0.82, float("nan"), float("nan")),  # the filter's std unknown stays unknown
+    ],
+)
+def test_target_relative_yaw_std_never_claims_a_surer_heading(dialect, confidence, rotation_std, yaw_std):
+    track = make_track(R=random_rotation(np.random.default_rng(2)), heading_confidence=confidence)
+    track.rotation_std_rad = np.array([0.01, rotation_std, 0.03])
+    decoded = _wire(dialect, messages.target_relative(dialect, track, messages.sensor_quaternion(GEO), 123))
+    assert decoded.get_type() == "TARGET_RELATIVE" and decoded.id == 7
+    if math.isnan(yaw_std):
+        assert math.isnan(decoded.yaw_std)
+    else:
+        assert decoded.yaw_std == pytest.approx(yaw_std, rel=1e-6)  # float32 on the wire
+    # The attitude is still the published one: the doubt lives in yaw_std, not in q_target.
+    R_frd_body = quat_wxyz_to_matrix(np.array(decoded.q_target))
+    np.testing.assert_allclose(
+        R_frd_body, messages.FRD_FROM_CAM @ quat_wxyz_to_matrix(track.quaternion_wxyz), atol=1e-6
+    )
+    with pytest.raises(ValueError, match="heading_confidence"):
+        messages.target_relative(dialect, make_track(heading_confidence=-0.2), (0, 0, 0, 0), 1)
 
 
 def test_target_absolute_and_adsb_vehicle(dialect):

@@ -35,6 +35,8 @@ from dronekey.types import KeypointDetection, Track, TrackStatus
 FPS = 30
 FRAME_NS = 1_000_000_000 // FPS
 KEYPOINTS = np.array([[600.0, 300.0], [660.0, 304.0], [658.0, 350.0], [602.0, 346.0]])
+# Front/back confidence per track id: 1 fairly sure, 2 unsure (a "heading ?" label), others unknown.
+HEADINGS = {1: 0.82, 2: 0.3}
 
 
 def camera() -> CameraModel:
@@ -64,6 +66,7 @@ def track(track_id: int, t_ns: int, *, z: float = 20.0) -> Track:
         score=0.9,
         reprojection_px=0.6,
         hits=5,
+        heading_confidence=HEADINGS.get(track_id, float("nan")),
     )
 
 
@@ -207,7 +210,13 @@ def test_close_finalises_a_file_with_every_channel_schema_and_count(tmp_path):
     assert [t["text"] for t in ann["texts"][:4]] == ["1", "2", "3", "4"]
     box = points[foxglove.LINE_LOOP]["points"]
     assert box[0] == {"x": 500 * 0.75, "y": 200 * 0.75} and box[2] == {"x": 756 * 0.75, "y": 456 * 0.75}
-    assert any(t["text"].startswith("#1 confirmed") for t in ann["texts"])
+    labels = [t["text"] for t in ann["texts"][4:] if t["text"].startswith("#")]
+    assert labels == ["#1 confirmed 20.0 m  heading 0.82", "#2 confirmed 20.0 m  heading ?"]
+    # The track messages carry the confidence too, typed for Foxglove's plots.
+    assert [m["heading_confidence"] for _, m in by_topic["/dronekey/tracks"][:2]] == [0.82, 0.3]
+    track_schema = json.loads(summary.schemas[channels["/dronekey/tracks"].schema_id].data)
+    assert track_schema["properties"]["heading_confidence"]["type"] == "number"
+    assert "heading_confidence" in track_schema["required"]
 
     # Transforms camera -> drone_<id>, quaternion in Foxglove's x, y, z, w order.
     _, tf = by_topic["/tf"][0]
@@ -215,6 +224,22 @@ def test_close_finalises_a_file_with_every_channel_schema_and_count(tmp_path):
     assert (first_tf["parent_frame_id"], first_tf["child_frame_id"]) == ("cam0", "drone_1")
     assert first_tf["translation"] == {"x": 0.5, "y": -1.0, "z": 20.0}
     assert first_tf["rotation"] == pytest.approx({"x": 0.3826834, "y": 0.0, "z": 0.0, "w": 0.9238795})
+
+
+def test_track_label_shows_the_heading_confidence():
+    t = track(3, 0)
+    t.position_m = np.array([0.0, 0.0, 12.4])
+    for confidence, heading in [(0.82, "0.82"), (0.5, "0.50"), (1.0, "1.00"), (0.49, "?"), (0.0, "?")]:
+        t.heading_confidence = confidence
+        assert foxglove.track_label(t) == f"#3 confirmed 12.4 m  heading {heading}"
+    t.heading_confidence = float("nan")  # a model without a front/back head: the front is not known
+    assert foxglove.track_label(t) == "#3 confirmed 12.4 m  heading ?"
+    t.position_m = np.array([np.nan, 0.0, 1.0])
+    t.status = TrackStatus.COASTING
+    assert foxglove.track_label(t) == "#3 coasting  heading ?"
+    t.heading_confidence = 2.0
+    with pytest.raises(ValueError, match=r"heading_confidence must be .* got 2\.0"):
+        foxglove.track_label(t)
 
 
 def test_worker_queues_the_frame_only_for_the_images_written(tmp_path):

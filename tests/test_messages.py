@@ -10,6 +10,7 @@ import base64
 import binascii
 import json
 import math
+import re
 import time
 
 import numpy as np
@@ -92,7 +93,9 @@ def strict_json(payload: bytes):
     return json.loads(payload, parse_constant=refuse)
 
 
-def make_track(track_id: int = 3, *, nan: bool = False, keypoints: bool = True) -> Track:
+def make_track(
+    track_id: int = 3, *, nan: bool = False, keypoints: bool = True, heading_confidence: float = 0.82
+) -> Track:
     return Track(
         track_id=track_id,
         t_ns=1_700_000_000_123_456_789,
@@ -109,6 +112,7 @@ def make_track(track_id: int = 3, *, nan: bool = False, keypoints: bool = True) 
         reprojection_px=float("nan") if nan else 0.7,
         hits=12,
         age_s=0.4,
+        heading_confidence=float("nan") if nan else heading_confidence,
     )
 
 
@@ -131,13 +135,17 @@ def test_validator_rejects_what_it_should():
     assert schema_errors({**good, "surprise": 1}, schema)
     assert schema_errors({k: v for k, v in good.items() if k != "score"}, schema)
     assert schema_errors({**good, "lat": 1.0}, schema)  # lat without lon, alt_m, ...
+    assert schema_errors({**good, "heading_confidence": 1.5}, schema)
+    assert schema_errors({**good, "heading_confidence": -0.1}, schema)
+    assert schema_errors({k: v for k, v in good.items() if k != "heading_confidence"}, schema)
 
 
 # ----------------------------------------------------------------------------- track
 def test_track_message_carries_the_contract_fields_and_validates():
     message = messages.track_message(make_track(), "cam0")
     for key in ("camera_id", "track_id", "t_ns", "status", "position_m", "quaternion_wxyz", "velocity_mps",
-                "position_cov", "keypoints_px", "score", "reprojection_px"):  # fmt: skip
+                "position_cov", "keypoints_px", "score", "reprojection_px",
+                "heading_confidence"):  # fmt: skip
         assert key in message
     assert message["camera_id"] == "cam0" and message["track_id"] == 3 and message["status"] == "confirmed"
     assert message["t_ns"] == 1_700_000_000_123_456_789  # integer ns survive JSON exactly
@@ -165,7 +173,28 @@ def test_nan_becomes_null_and_the_bytes_are_strict_json():
     assert decoded["rotation_std_rad"] == [None, None, None]
     assert decoded["velocity_mps"] == [None, None, 0.0]
     assert decoded["keypoints_px"] is None
+    assert decoded["heading_confidence"] is None  # a model without a front/back head
     assert schema_errors(decoded, messages.load_schema("track")) == []
+
+
+@pytest.mark.parametrize(
+    ("confidence", "sent"),
+    [(0.82, 0.82), (0.0, 0.0), (1.0, 1.0), (1.0 + 1e-9, 1.0), (-1e-9, 0.0), (np.float32(0.25), 0.25),
+     (float("nan"), None), (None, None)],
+)  # fmt: skip
+def test_heading_confidence_is_sent_in_0_1_or_null(confidence, sent):
+    track = make_track(heading_confidence=confidence)
+    decoded = strict_json(messages.to_json_bytes(messages.track_message(track, "cam0")))
+    assert decoded["heading_confidence"] == (None if sent is None else pytest.approx(sent))
+    assert schema_errors(decoded, messages.load_schema("track")) == []
+    schema = messages.load_schema("track")["properties"]["heading_confidence"]
+    assert (schema["minimum"], schema["maximum"]) == (0, 1)
+
+
+@pytest.mark.parametrize("confidence", [1.2, -0.5, "sure"])
+def test_heading_confidence_out_of_range_names_itself(confidence):
+    with pytest.raises(ValueError, match=f"heading_confidence must be .* got {re.escape(repr(confidence))}"):
+        messages.track_message(make_track(heading_confidence=confidence), "cam0")
 
 
 def test_geodetic_fields_with_a_camera_pose():

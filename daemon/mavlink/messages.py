@@ -9,6 +9,14 @@ frame is the camera mount with forward along the optical axis. The axes map as
 ``p_frd = FRD_FROM_CAM @ p_cam``. ``q_sensor`` rotates that FRD frame into local NED when the camera's
 geodetic pose is configured (the mount's yaw, pitch, roll), and is (0, 0, 0, 0), "ignored", otherwise.
 
+Front and back. A symmetric drone's front cannot always be told from its back: ``Track.heading_confidence``
+(0 a coin flip, 1 certain, NaN unknown) says how sure the track is. Of the messages sent here only
+TARGET_RELATIVE carries an attitude uncertainty, ``yaw_std``, which never claims more than the
+front/back doubt allows (``target_relative``, ``heading_flip_yaw_std``). TARGET_ABSOLUTE has no
+attitude uncertainty field: its ``q_target`` and body-frame ``vel`` are the published heading as it
+is (read TARGET_RELATIVE's ``yaw_std`` of the same track). ADSB_VEHICLE's heading is the course over
+ground, from the velocity, and does not depend on the drone's front.
+
 Every function takes the generated dialect module (``dialect``, see ``dialect.load_dialect``) and
 returns a message object ready for ``MAVLink.send``; none of them sends.
 """
@@ -22,6 +30,7 @@ import time
 import numpy as np
 
 from dronekey.daemon.geo import CameraGeo
+from dronekey.daemon.messages import check_heading_confidence
 from dronekey.rotations import matrix_to_quat_wxyz, ned_from_camera, quat_wxyz_to_matrix
 from dronekey.types import Track
 
@@ -32,6 +41,7 @@ __all__ = [
     "adsb_vehicle",
     "autopilot_version",
     "encode_version",
+    "heading_flip_yaw_std",
     "heartbeat",
     "sensor_quaternion",
     "target_absolute",
@@ -76,19 +86,81 @@ def sensor_quaternion(geo: CameraGeo | None) -> tuple[float, float, float, float
     return _quat_tuple(geo.R_ned_cam @ FRD_FROM_CAM.T)
 
 
+def heading_flip_yaw_std(heading_confidence: float) -> float:
+    """Standard deviation of the target's yaw that the front/back doubt alone implies, rad.
+
+    With ``q = (1 + heading_confidence) / 2`` the probability that the published front is the
+    drone's front, the yaw is a two-point mixture: the published yaw with probability ``q``, and
+    the yaw of the 180-degree twin about the body's vertical axis (yaw + pi: the body's x and y
+    axes change sign, so the twin's yaw differs by exactly pi in any frame, whatever the tilt) with
+    probability ``1 - q``. The mixture's variance about its mean is ``q (1 - q) pi^2``.
+
+    Parameters
+    ----------
+    heading_confidence : float
+        ``Track.heading_confidence`` in [0, 1]; NaN (a model without a front/back head) is taken as
+        0, the conservative reading.
+
+    Returns
+    -------
+    float
+        ``pi * sqrt(q (1 - q))``: pi / 2 at a coin flip (or unknown), 0 when certain.
+
+    Raises
+    ------
+    ValueError
+        Naming ``heading_confidence`` and its value, if it is outside [0, 1].
+    """
+    confidence = check_heading_confidence(heading_confidence)
+    if math.isnan(confidence):
+        confidence = 0.0
+    q = 0.5 * (1.0 + confidence)
+    return math.pi * math.sqrt(q * (1.0 - q))
+
+
 def target_relative(dialect, track: Track, q_sensor: tuple[float, ...], timestamp_us: int):
     """TARGET_RELATIVE (511) of one track, in the sensor's FRD frame (module docstring).
 
+    Parameters
+    ----------
+    dialect : module
+        The generated dialect (``dialect.load_dialect``).
+    track : dronekey.types.Track
+        The track; position and covariance in the camera frame, m and m^2.
+    q_sensor : (4,) floats
+        Sensor FRD -> local NED (w, x, y, z), or zeros (``sensor_quaternion``).
+    timestamp_us : int
+        Unix time of the state, µs (``unix_time_us``).
+
+    Returns
+    -------
+    MAVLink_target_relative_message, with:
+
     pos_std : square roots of the FRD covariance's diagonal, m.
-    yaw_std : the track's rotation std about the camera y axis (= FRD z, down), rad; the
-        small-angle reading of a rotation-vector standard deviation.
+    yaw_std : standard deviation of the target's yaw about the sensor's FRD z (down) axis, rad:
+        ``max(rotation_std_rad[1], heading_flip_yaw_std(heading_confidence))``, NaN when the
+        track's rotation std is not finite (unknown). ``rotation_std_rad[1]`` is the track's
+        rotation std about the camera y axis (= FRD z), the small-angle reading of a
+        rotation-vector standard deviation. The tracker already folds the front/back doubt into
+        ``rotation_std_rad`` (its variance gains ``q (1 - q) pi^2``, see ``heading_flip_yaw_std``),
+        so it is not added again here; the floor only guarantees that ``yaw_std`` never claims a
+        heading surer than ``heading_confidence`` allows (pi / 2 at a coin flip or when the
+        confidence is unknown), whatever the camera's tilt spreads over the other components.
     q_target : drone body (FRD) -> sensor FRD, (w, x, y, z); zeros when the track has no attitude.
+        While ``heading_confidence`` is low it may point the drone's back forward.
     id : track id modulo 256 (the field is uint8).
+
+    Raises
+    ------
+    ValueError
+        Naming ``heading_confidence`` if it is outside [0, 1].
     """
     p_frd = FRD_FROM_CAM @ np.asarray(track.position_m, dtype=np.float64).reshape(3)
     cov = np.asarray(track.position_cov, dtype=np.float64).reshape(3, 3)
     pos_std = np.sqrt(np.clip(np.diag(FRD_FROM_CAM @ cov @ FRD_FROM_CAM.T), 0.0, None))
-    rot_std = np.asarray(track.rotation_std_rad, dtype=np.float64).reshape(3)
+    filter_yaw_std = float(np.asarray(track.rotation_std_rad, dtype=np.float64).reshape(3)[1])
+    flip_yaw_std = heading_flip_yaw_std(track.heading_confidence)
+    yaw_std = max(filter_yaw_std, flip_yaw_std) if math.isfinite(filter_yaw_std) else math.nan
     R_cam_body = _body_to_cam(track)
     q_target = _quat_tuple(None if R_cam_body is None else FRD_FROM_CAM @ R_cam_body)
     return dialect.MAVLink_target_relative_message(
@@ -99,7 +171,7 @@ def target_relative(dialect, track: Track, q_sensor: tuple[float, ...], timestam
         float(p_frd[1]),
         float(p_frd[2]),
         [float(v) for v in pos_std],
-        float(rot_std[1]),
+        yaw_std,
         list(q_target),
         list(q_sensor),
         dialect.LANDING_TARGET_TYPE_VISION_OTHER,
@@ -111,6 +183,9 @@ def target_absolute(dialect, track: Track, state: TargetGeodetic, geo: CameraGeo
 
     vel : the track's velocity in the drone's body frame (FRD), m/s, when its attitude is known.
     q_target : drone body -> local NED at the camera (w, x, y, z).
+    The message has no attitude uncertainty field: ``q_target`` and ``vel`` (whose x and y change
+    sign with the front) are the published heading even while ``Track.heading_confidence`` is low;
+    TARGET_RELATIVE's ``yaw_std`` of the same track says how far to trust them.
     position_std : (eph, epv) = (sqrt(var_north + var_east), sqrt(var_down)), m.
     Acceleration, rates and the velocity / acceleration standard deviations are not estimated:
     zeros (upstream's "invalid") and NaN.
