@@ -39,7 +39,14 @@ import numpy as np
 
 from dronekey import __version__
 from dronekey.crop import CropPolicy
-from dronekey.runtime import IMAGENET_MEAN, IMAGENET_STD, INPUT_NAME, OUTPUT_NAMES, preprocess_crops
+from dronekey.runtime import (
+    HEADING_OUTPUT,
+    IMAGENET_MEAN,
+    IMAGENET_STD,
+    INPUT_NAME,
+    OUTPUT_NAMES,
+    preprocess_crops,
+)
 
 __all__ = [
     "ExportError",
@@ -145,8 +152,14 @@ def write_metadata(path: str | Path, metadata: Mapping[str, str]) -> None:
 # --------------------------------------------------------------------------------------------------
 
 
+def output_names(net) -> list[str]:
+    """The ONNX outputs of ``net``: keypoints, presence, gate, and heading with a front/back head."""
+    return list(OUTPUT_NAMES) + ([HEADING_OUTPUT] if net.config.heading_head else [])
+
+
 def _export_wrapper(net):
-    """The network with ONNX-facing outputs: (keypoints, sigmoid(presence_logit), gate)."""
+    """The network with ONNX-facing outputs: (keypoints, sigmoid(presence_logit), gate[,
+    sigmoid(heading_logit)])."""
     import torch
 
     class _Exported(torch.nn.Module):
@@ -156,7 +169,14 @@ def _export_wrapper(net):
 
         def forward(self, image: torch.Tensor):
             out = self.inner(image)
-            return out.keypoints, torch.sigmoid(out.presence_logit), out.gate
+            if out.heading_logit is None:
+                return out.keypoints, torch.sigmoid(out.presence_logit), out.gate
+            return (
+                out.keypoints,
+                torch.sigmoid(out.presence_logit),
+                out.gate,
+                torch.sigmoid(out.heading_logit),
+            )
 
     return _Exported(net).eval()
 
@@ -210,7 +230,7 @@ def export_onnx(
                 (example,),
                 str(out),
                 input_names=[INPUT_NAME],
-                output_names=list(OUTPUT_NAMES),
+                output_names=output_names(net),
                 opset_version=opset,
                 dynamo=True,
                 external_data=False,
@@ -225,19 +245,19 @@ def export_onnx(
     _name_batch_dimension(out)
     write_metadata(out, build_metadata(net.config.to_dict(), dict(meta or {}), count_parameters(net)))
     if verify:
-        _verify_against_torch(wrapper, out, example)
+        _verify_against_torch(wrapper, out, example, output_names(net))
     return out
 
 
-def _verify_against_torch(wrapper, path: Path, example, tolerance: float = 1e-3) -> None:
+def _verify_against_torch(wrapper, path: Path, example, names: list[str], tolerance: float = 1e-3) -> None:
     import onnxruntime as ort
     import torch
 
     session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
     with torch.no_grad():
         expected = [t.numpy() for t in wrapper(example)]
-    got = session.run(list(OUTPUT_NAMES), {INPUT_NAME: example.numpy()})
-    for name, a, b in zip(OUTPUT_NAMES, got, expected, strict=True):
+    got = session.run(names, {INPUT_NAME: example.numpy()})
+    for name, a, b in zip(names, got, expected, strict=True):
         err = float(np.max(np.abs(a - b)))
         if a.shape != b.shape or err > tolerance:
             raise ExportError(

@@ -3,20 +3,22 @@
 A 1080p frame is far larger than the network's 128 px input and a drone may be 30 or 600 px wide,
 or absent. Two modes:
 
-- **Acquisition** (no live track, or the tracking crop failed): a cheap saliency pass on a
+- **Acquisition** (no confirmed track measured, or the periodic search): a cheap saliency pass on a
   downscaled frame (local contrast against a blurred background, plus frame-to-frame change for a
-  static camera) proposes a few blobs; the network checks them all in one batch, the best presence
-  score wins if it passes the threshold, and a second crop framed on the predicted keypoints
-  (exactly as in training, ``dronekey.crop.CropPolicy``) refines them.
-- **Tracking**: one crop around the box of the track's predicted pose (propeller discs projected
-  through the camera), one inference per frame.
+  static camera) proposes a few blobs; the network checks them all in one batch, and every one
+  above the presence threshold is refined by a second crop framed on its predicted keypoints
+  (exactly as in training, ``dronekey.crop.CropPolicy``), all in a second batch. Each survivor
+  becomes its own hypothesis downstream (``acquire_all``).
+- **Tracking**: one crop per live track around the box of its predicted pose (propeller discs
+  projected through the camera), all in one batch (``track_many``).
 
-Both return ``KeypointDetection`` objects in full-frame pixels, or None for "no drone".
+Both return ``KeypointDetection`` objects in full-frame pixels.
 """
 
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -28,7 +30,14 @@ from dronekey.drone_spec import DroneSpec
 from dronekey.runtime import KeypointModel
 from dronekey.types import KeypointDetection
 
-__all__ = ["Localizer", "LocalizerConfig", "box_from_keypoints", "box_from_pose", "propose_rois"]
+__all__ = [
+    "Localizer",
+    "LocalizerConfig",
+    "box_from_keypoints",
+    "box_from_pose",
+    "box_overlap",
+    "propose_rois",
+]
 
 log = logging.getLogger(__name__)
 
@@ -149,34 +158,73 @@ class Localizer:
     def track(self, frame_bgr: np.ndarray, box: Box) -> KeypointDetection:
         """Keypoints in the crop of a predicted box, recut once on them when the prediction was off
         (``LocalizerConfig.recut_shift`` / ``recut_scale``)."""
-        det = self.detect_in_box(frame_bgr, box)
+        return self.track_many(frame_bgr, [box])[0]
+
+    def track_many(self, frame_bgr: np.ndarray, boxes: Sequence[Box]) -> list[KeypointDetection]:
+        """``track`` for several predicted boxes (one per live track) in one batched inference, and
+        one more batch for the crops that need a recut."""
+        if not boxes:
+            return []
+        dets = self.model.detect(frame_bgr, [self.crop.roi(box) for box in boxes])
         cfg = self.config
-        if det.presence < cfg.presence_threshold or not np.all(np.isfinite(det.keypoints_px)):
-            return det
-        x0, y0, side = det.roi
-        nx, ny, nside = self.crop.roi(box_from_keypoints(det.keypoints_px, self.spec))
-        shift = max(abs(nx + nside / 2 - x0 - side / 2), abs(ny + nside / 2 - y0 - side / 2)) / side
-        if shift <= cfg.recut_shift and abs(nside / side - 1.0) <= cfg.recut_scale:
-            return det
-        recut = self.refine(frame_bgr, det)
-        return recut if recut.presence >= cfg.presence_threshold else det
+        recut = []
+        for k, det in enumerate(dets):
+            if det.presence < cfg.presence_threshold or not np.all(np.isfinite(det.keypoints_px)):
+                continue
+            x0, y0, side = det.roi
+            nx, ny, nside = self.crop.roi(box_from_keypoints(det.keypoints_px, self.spec))
+            shift = max(abs(nx + nside / 2 - x0 - side / 2), abs(ny + nside / 2 - y0 - side / 2)) / side
+            if shift > cfg.recut_shift or abs(nside / side - 1.0) > cfg.recut_scale:
+                recut.append(k)
+        for k, again in zip(recut, self.refine_many(frame_bgr, [dets[k] for k in recut]), strict=True):
+            if again.presence >= cfg.presence_threshold:
+                dets[k] = again
+        return dets
 
     def refine(self, frame_bgr: np.ndarray, detection: KeypointDetection) -> KeypointDetection:
         """Re-crop on the box implied by a detection's keypoints and run the network again."""
-        return self.detect_in_box(frame_bgr, box_from_keypoints(detection.keypoints_px, self.spec))
+        return self.refine_many(frame_bgr, [detection])[0]
+
+    def refine_many(
+        self, frame_bgr: np.ndarray, detections: Sequence[KeypointDetection]
+    ) -> list[KeypointDetection]:
+        """``refine`` for several detections in one batch."""
+        rois = [self.crop.roi(box_from_keypoints(d.keypoints_px, self.spec)) for d in detections]
+        return self.model.detect(frame_bgr, rois)
 
     # ------------------------------------------------------------------ acquisition
     def acquire(self, frame_bgr: np.ndarray) -> KeypointDetection | None:
         """Search the whole frame; the best refined detection above the presence threshold, or None."""
+        found = self.acquire_all(frame_bgr)
+        return found[0] if found else None
+
+    def acquire_all(self, frame_bgr: np.ndarray, exclude: Sequence[Box] = ()) -> list[KeypointDetection]:
+        """Every candidate of a whole-frame search that holds a drone, refined, best first.
+
+        All candidates are scored in one batch and those above the presence threshold refined in a
+        second; detections of the same object (keypoint boxes overlapping by more than a third)
+        keep only the best, and those on a box of ``exclude`` (the live tracks') are left out.
+        Each becomes its own hypothesis downstream, so one false candidate cannot hide the drone.
+        """
         rois = self.candidate_rois(frame_bgr)
         if not rois:
-            return None
-        detections = self.model.detect(frame_bgr, rois)
-        best = max(detections, key=lambda d: d.presence)
-        if best.presence < self.config.presence_threshold:
-            return None
-        refined = self.refine(frame_bgr, best)
-        return refined if refined.presence >= self.config.presence_threshold else best
+            return []
+        thr = self.config.presence_threshold
+        hits = [d for d in self.model.detect(frame_bgr, rois) if d.presence >= thr]
+        if not hits:
+            return []
+        refined = self.refine_many(frame_bgr, hits)
+        found = [r if r.presence >= thr else d for d, r in zip(hits, refined, strict=True)]
+        found.sort(key=lambda d: -d.presence)
+        kept: list[KeypointDetection] = []
+        boxes = list(exclude)
+        for det in found:
+            box = box_from_keypoints(det.keypoints_px, self.spec)
+            if any(box_overlap(box, other) > 1 / 3 for other in boxes):
+                continue
+            kept.append(det)
+            boxes.append(box)
+        return kept
 
     def candidate_rois(self, frame_bgr: np.ndarray) -> list[tuple[int, int, int]]:
         """Square crops around the most salient blobs of the frame, best first."""
@@ -224,6 +272,14 @@ def propose_rois(
         if len(rois) >= cfg.max_candidates:
             break
     return rois, small
+
+
+def box_overlap(a: Box, b: Box) -> float:
+    """Intersection over the smaller box's area of two (x, y, w, h) boxes."""
+    ix = max(0.0, min(a[0] + a[2], b[0] + b[2]) - max(a[0], b[0]))
+    iy = max(0.0, min(a[1] + a[3], b[1] + b[3]) - max(a[1], b[1]))
+    smaller = max(min(a[2] * a[3], b[2] * b[3]), 1e-9)
+    return ix * iy / smaller
 
 
 def _max_abs_difference(a: np.ndarray, b: np.ndarray) -> np.ndarray:

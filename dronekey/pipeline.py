@@ -1,12 +1,17 @@
 """One frame in, track updates out: the localiser, keypoint model, pose estimator and tracker glued
 together exactly once, for the evaluation and the daemon alike (DESIGN.md §3).
 
-    Frame --Localizer--> KeypointDetection --PoseEstimator--> PoseMeasurement --Tracker--> Tracks
+    Frame --Localizer--> KeypointDetection --plausibility--> --PoseEstimator--> PoseMeasurement
+          --Tracker--> Tracks
 
-While a track lives, the crop follows the track's predicted pose, and the prediction is the prior
-that undoes the network's keypoint-order flips (``keypoint_order``) and picks between the two IPPE
-solutions; when that crop shows no drone (presence below the threshold) or its keypoints give no
-acceptable pose, the localiser searches the whole frame.
+Every live track gets a crop around its predicted pose, all in one batched inference; the
+prediction is the prior that turns the detection to the track's front (the heading twin, whose
+evidence the tracker weighs), undoes the network's other keypoint-order flips (``keypoint_order``)
+and picks between the two IPPE solutions. When no confirmed track was measured this frame, and
+every ``search_every`` frames regardless, the localiser searches the whole frame; every candidate
+that holds a drone becomes a measurement of its own, so each starts a tentative hypothesis and
+only the ones whose evidence holds are confirmed. Every detection must pass the plausibility gate
+(``dronekey.plausibility``) before its pose reaches the tracker.
 """
 
 from __future__ import annotations
@@ -22,15 +27,26 @@ from dronekey.camera import CalibrationError, CameraModel
 from dronekey.crop import CropPolicy
 from dronekey.drone_spec import DroneSpec, load_spec
 from dronekey.keypoint_order import KeypointOrder
-from dronekey.localizer import Localizer, LocalizerConfig, box_from_pose
+from dronekey.localizer import Localizer, LocalizerConfig, box_from_keypoints, box_from_pose, box_overlap
+from dronekey.plausibility import PlausibilityConfig, check_detection, check_pose
 from dronekey.pose import PoseEstimator, PoseRejection
-from dronekey.runtime import KeypointModel
-from dronekey.tracker import Tracker, TrackerConfig
+from dronekey.runtime import HEADING_TWIN, KeypointModel
+from dronekey.tracker import Tracker, TrackerConfig, TrackPrediction
 from dronekey.types import Frame, KeypointDetection, PoseMeasurement, Track, TrackStatus
 
-__all__ = ["PipelineOutput", "PoseTracker", "TrackingPipeline"]
+__all__ = ["Measured", "PipelineOutput", "PoseTracker", "TrackingPipeline"]
 
 log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True, slots=True)
+class Measured:
+    """One detection that became a pose this frame: its keypoints (in the order the pose uses),
+    the pose, and the track whose crop it came from (None: from the whole-frame search)."""
+
+    detection: KeypointDetection
+    measurement: PoseMeasurement
+    track_id: int | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -38,11 +54,13 @@ class PipelineOutput:
     """What one frame produced.
 
     tracks : live tracks after this frame (and, once, tracks lost at this frame).
-    detection : the keypoints the pose came from, or None when no drone was found.
-    measurement : the raw PnP pose of this frame, or None.
-    mode : "track" (crop from the prediction), "acquire" (whole-frame search) or "none".
-    rejection : why the keypoints gave no pose, when they did not.
+    detection : the keypoints of the best track's pose this frame (confirmed tracks first), or None.
+    measurement : that raw PnP pose, or None.
+    mode : "track" (``detection`` came from a track's crop), "acquire" (from the whole-frame
+        search) or "none".
+    rejection : why the best candidate gave no pose, when nothing did.
     timings_ms : wall time of each stage.
+    measured : every detection that became a pose this frame, best first.
     """
 
     tracks: tuple[Track, ...]
@@ -51,10 +69,11 @@ class PipelineOutput:
     mode: str
     rejection: str | None = None
     timings_ms: dict = field(default_factory=dict)
+    measured: tuple[Measured, ...] = ()
 
 
 class PoseTracker:
-    """The geometric tail of the pipeline: keypoints -> PnP pose -> Kalman tracks.
+    """The geometric tail of the pipeline: keypoints -> plausibility -> PnP pose -> Kalman tracks.
 
     Shared by ``TrackingPipeline`` and by the evaluation's oracle mode (ground-truth keypoints).
 
@@ -66,6 +85,8 @@ class PoseTracker:
     keypoint_sigma_px : keypoint noise (px) assumed by the pose estimator's covariance.
     max_reprojection_frac : largest RMS reprojection error accepted, as a fraction of the keypoints'
         apparent spread (a wrong keypoint order fits far worse than this), floor 2 px.
+    plausibility : PlausibilityConfig, optional
+        The gate every detection and its pose must pass.
     """
 
     def __init__(
@@ -75,36 +96,66 @@ class PoseTracker:
         tracker: TrackerConfig | None = None,
         keypoint_sigma_px: float = 1.5,
         max_reprojection_frac: float = 0.06,
+        plausibility: PlausibilityConfig | None = None,
     ) -> None:
         self.camera = camera
         self.spec = spec
         self.estimator = PoseEstimator(camera, spec, keypoint_sigma_px=keypoint_sigma_px)
         self.tracker = Tracker(tracker)
         self.max_reprojection_frac = max_reprojection_frac
-        self.order = KeypointOrder()
-        self._prior_track: int | None = None
+        self.plausibility = plausibility or PlausibilityConfig()
+        # Per track: its keypoint-order history (key None: callers that name no track, one at a time).
+        self._orders: dict[int | None, KeypointOrder] = {}
+
+    def predictions(self, t_ns: int) -> list[TrackPrediction]:
+        """Every live track's predicted pose at ``t_ns``, best first (confirmed, then by id)."""
+        predictions = [p for p in self.tracker.predict(t_ns) if p.status != TrackStatus.LOST]
+        predictions.sort(key=lambda p: (p.status != TrackStatus.CONFIRMED, p.track_id))
+        live = {p.track_id for p in predictions}
+        for track_id in [k for k in self._orders if k is not None and k not in live]:
+            del self._orders[track_id]
+        return predictions
 
     def prior(self, t_ns: int) -> tuple[np.ndarray, np.ndarray] | None:
         """Predicted pose (R, t) of the best live track at ``t_ns`` (confirmed first), or None."""
-        predictions = [p for p in self.tracker.predict(t_ns) if p.status != TrackStatus.LOST]
-        best = min(predictions, key=lambda p: (p.status != TrackStatus.CONFIRMED, p.track_id), default=None)
-        track_id = best.track_id if best is not None else None
-        if track_id != self._prior_track:  # the keypoint-order history belongs to one track
-            self.order.reset()
-            self._prior_track = track_id
+        best = next(iter(self.predictions(t_ns)), None)
         return (best.R, best.t) if best is not None else None
 
-    def order_keypoints(self, detection: KeypointDetection, prior) -> KeypointDetection:
-        """The detection with its keypoint order made to fit the prior's projection, when the
-        recent history trusts the track (``dronekey.keypoint_order``); unchanged without a prior."""
+    def order(self, track_id: int | None = None) -> KeypointOrder:
+        """The keypoint-order history of one track (None: of the caller that names none)."""
+        return self._orders.setdefault(track_id, KeypointOrder())
+
+    def order_keypoints(
+        self, detection: KeypointDetection, prior, track_id: int | None = None
+    ) -> KeypointDetection:
+        """The detection turned to the prior's front (the heading twin, with its front/back
+        probability), then with the other order flips undone when the track's history trusts it
+        (``dronekey.keypoint_order``); unchanged without a prior."""
         if prior is None:
             return detection
         predicted = self.camera.project_body(self.spec.keypoints_3d, *prior)
-        keypoints, symmetry = self.order.apply(detection.keypoints_px, predicted)
+        kp = detection.keypoints_px
+        twin = kp[HEADING_TWIN]
+        known = np.isfinite(detection.heading_p)  # without a front/back head, KeypointOrder alone
+        if known and np.abs(twin - predicted).mean() < np.abs(kp - predicted).mean():
+            detection = replace(detection, keypoints_px=twin, heading_p=1.0 - detection.heading_p)
+        order = self.order(track_id)
+        keypoints, symmetry = order.apply(detection.keypoints_px, predicted)
         return detection if symmetry == 0 else replace(detection, keypoints_px=keypoints)
 
+    def measure_detection(
+        self, detection: KeypointDetection, prior
+    ) -> tuple[PoseMeasurement | None, str | None]:
+        """``measure`` after the plausibility gate on the detection itself (its crop, the frame,
+        collapsed pairs, spread): what the pipeline does with every network detection."""
+        reason = check_detection(detection, self.camera.size, self.plausibility)
+        if reason is not None:
+            return None, reason
+        return self.measure(detection, prior)
+
     def measure(self, detection: KeypointDetection, prior) -> tuple[PoseMeasurement | None, str | None]:
-        """PnP pose of a detection (the prior picks the IPPE solution), or None and the reason."""
+        """PnP pose of keypoints (the prior picks the IPPE solution) that passes the reprojection and
+        range checks, or None and why."""
         result = self.estimator.estimate(detection.keypoints_px, prior=prior)
         if isinstance(result, PoseRejection):
             return None, result.reason
@@ -113,6 +164,9 @@ class PoseTracker:
         limit = max(2.0, self.max_reprojection_frac * spread)
         if result.reprojection_px > limit:
             return None, f"reprojection {result.reprojection_px:.1f} px > {limit:.1f} px"
+        reason = check_pose(result, detection, self.camera, self.spec, self.plausibility)
+        if reason is not None:
+            return None, reason
         return result, None
 
     def track(
@@ -121,7 +175,17 @@ class PoseTracker:
         """Advance the tracker to ``t_ns`` with this frame's measurement (or none)."""
         if measurement is None or detection is None:
             return self.tracker.update(t_ns, [])
-        return self.tracker.update(t_ns, [measurement], [detection.presence], [detection.keypoints_px])
+        return self.track_all(t_ns, [Measured(detection, measurement)])
+
+    def track_all(self, t_ns: int, measured: list[Measured]) -> list[Track]:
+        """Advance the tracker to ``t_ns`` with every pose of this frame."""
+        return self.tracker.update(
+            t_ns,
+            [m.measurement for m in measured],
+            [m.detection.presence for m in measured],
+            [m.detection.keypoints_px for m in measured],
+            [m.detection.heading_p for m in measured],
+        )
 
 
 class TrackingPipeline:
@@ -137,8 +201,11 @@ class TrackingPipeline:
         Drone spec name (``mini2``, ``air2s``), YAML file or spec: the 3D keypoints PnP uses.
     providers, threads, mirror_average : passed to ``KeypointModel`` (mirror averaging is on by
         default: a fifth less keypoint error for about 1.6x the inference time).
-    localizer, tracker : configs (defaults suit a small drone at 30 fps).
+    localizer, tracker, plausibility : configs (defaults suit a small drone at 30 fps).
     keypoint_sigma_px, max_reprojection_frac : see ``PoseTracker``.
+    search_every : frames between whole-frame searches while a confirmed track is measured (the
+        search also runs on every frame without one), so that a drone outside the live tracks is
+        found; 0 never searches while tracking.
     """
 
     def __init__(
@@ -153,7 +220,12 @@ class TrackingPipeline:
         tracker: TrackerConfig | None = None,
         keypoint_sigma_px: float = 1.5,
         max_reprojection_frac: float = 0.06,
+        plausibility: PlausibilityConfig | None = None,
+        search_every: int = 15,
     ) -> None:
+        if isinstance(search_every, bool) or not isinstance(search_every, int) or search_every < 0:
+            raise ValueError(f"search_every must be an integer >= 0, got {search_every!r}")
+        self.search_every = search_every
         self.camera = camera
         self.spec: DroneSpec = drone if isinstance(drone, DroneSpec) else load_spec(drone)
         self.model = KeypointModel(
@@ -163,7 +235,9 @@ class TrackingPipeline:
             **{**self.model.metadata.get("crop_policy", {}), "input_size": self.model.input_size}
         )
         self.localizer = Localizer(self.model, self.spec, crop, localizer)
-        self.poses = PoseTracker(camera, self.spec, tracker, keypoint_sigma_px, max_reprojection_frac)
+        self.poses = PoseTracker(
+            camera, self.spec, tracker, keypoint_sigma_px, max_reprojection_frac, plausibility
+        )
         self.frames = 0
 
     def info(self) -> dict:
@@ -188,32 +262,64 @@ class TrackingPipeline:
         self.frames += 1
         timings: dict[str, float] = {}
         t0 = time.perf_counter()
-        prior = self.poses.prior(frame.t_ns)
-        detection = measurement = None
-        rejection: str | None = None
-        mode = "none"
-        if prior is not None:
-            box = box_from_pose(self.camera, self.spec, *prior)
-            if box is not None and _overlaps_frame(box, w, h):
-                det = self.poses.order_keypoints(self.localizer.track(frame.bgr, box), prior)
-                if det.presence >= self.localizer.config.presence_threshold:
-                    measurement, rejection = self.poses.measure(det, prior)
-                    if measurement is not None:
-                        detection, mode = det, "track"
-            timings["track_crop"] = _ms(t0)
-        if measurement is None:
+        measured, rejections, tracked_confirmed = self._track_crops(frame, w, h)
+        timings["track_crop"] = _ms(t0)
+        search = not tracked_confirmed or (self.search_every and self.frames % self.search_every == 0)
+        if search:
             t1 = time.perf_counter()
-            det = self.localizer.acquire(frame.bgr)
+            exclude = [box_from_keypoints(m.detection.keypoints_px, self.spec) for m in measured]
+            for det in self.localizer.acquire_all(frame.bgr, exclude):
+                measurement, rejection = self.poses.measure_detection(det, None)
+                if measurement is not None:
+                    measured.append(Measured(det, measurement))
+                else:
+                    rejections.append(rejection)
             timings["acquire"] = _ms(t1)
-            if det is not None:
-                det = self.poses.order_keypoints(det, prior)
-                measurement, rejection = self.poses.measure(det, prior)
-                detection, mode = det, "acquire"
         t2 = time.perf_counter()
-        tracks = self.poses.track(frame.t_ns, measurement, detection)
+        tracks = self.poses.track_all(frame.t_ns, measured)
         timings["track"] = _ms(t2)
         timings["total"] = _ms(t0)
-        return PipelineOutput(tuple(tracks), detection, measurement, mode, rejection, timings)
+        best = measured[0] if measured else None
+        mode = "none" if best is None else ("track" if best.track_id is not None else "acquire")
+        return PipelineOutput(
+            tuple(tracks),
+            best.detection if best else None,
+            best.measurement if best else None,
+            mode,
+            None if best else next(iter(rejections), None),
+            timings,
+            tuple(measured),
+        )
+
+    def _track_crops(self, frame: Frame, w: int, h: int) -> tuple[list[Measured], list[str], bool]:
+        """One crop per live track (best first), one batch: the poses they gave, why the others
+        gave none, and whether a confirmed track was measured."""
+        owners, boxes = [], []
+        for p in self.poses.predictions(frame.t_ns):
+            box = box_from_pose(self.camera, self.spec, p.R, p.t)
+            if box is not None and _overlaps_frame(box, w, h):
+                owners.append(p)
+                boxes.append(box)
+        measured: list[Measured] = []
+        rejections: list[str] = []
+        taken: list = []  # keypoint boxes already measured this frame
+        threshold = self.localizer.config.presence_threshold
+        for p, det in zip(owners, self.localizer.track_many(frame.bgr, boxes), strict=True):
+            if det.presence < threshold:
+                continue
+            prior = (p.R, p.t)
+            det = self.poses.order_keypoints(det, prior, p.track_id)
+            box = box_from_keypoints(det.keypoints_px, self.spec)
+            if any(box_overlap(box, other) > 1 / 3 for other in taken):
+                continue  # a better track's crop already holds this drone: one measurement, one track
+            measurement, rejection = self.poses.measure_detection(det, prior)
+            if measurement is None:
+                rejections.append(rejection)
+                continue
+            measured.append(Measured(det, measurement, p.track_id))
+            taken.append(box)
+        confirmed = {p.track_id for p in owners if p.status == TrackStatus.CONFIRMED}
+        return measured, rejections, any(m.track_id in confirmed for m in measured)
 
 
 def _overlaps_frame(box, w: int, h: int) -> bool:

@@ -4,6 +4,13 @@ rtmlib style: one class, ``KeypointModel``, with separate ``preprocess`` (BGR ui
 normalised RGB tensor), ``inference`` (ONNX Runtime) and ``postprocess`` (normalised crop units ->
 full-frame pixels), and ``detect`` / ``__call__`` chaining them for a frame and its crops.
 
+Front and back. A model with a front/back head (``DroneKeyConfig.heading_head``) has a fourth
+output, ``heading``: the probability that its keypoints are in the spec's order rather than the
+180-degree twin (``HEADING_TWIN``). ``postprocess`` applies that decision (a probability below 0.5
+swaps the keypoints to the twin order) and hands the pipeline the probability of the order it
+returns (``KeypointDetection.heading_p`` in [0.5, 1]), so that the tracker can weigh it. A model
+without the output gives NaN: the order is the network's, its doubt unknown.
+
 The input size and normalisation are read from the model's metadata (written by
 ``dronekey.export``), so a model carries its own contract. torch is never imported here: the
 daemon runs without it. ``preprocess_crops`` is also what training uses, so training and serving
@@ -28,6 +35,8 @@ from dronekey.crop import ROI, crop_square, from_normalised
 from dronekey.types import KeypointDetection
 
 __all__ = [
+    "HEADING_OUTPUT",
+    "HEADING_TWIN",
     "IMAGENET_MEAN",
     "IMAGENET_STD",
     "INPUT_NAME",
@@ -45,6 +54,9 @@ LOG = logging.getLogger(__name__)
 # The ONNX contract written by dronekey.export.
 INPUT_NAME = "image"
 OUTPUT_NAMES = ("keypoints", "presence", "gate")
+HEADING_OUTPUT = "heading"  # optional fourth output: sigmoid of the front/back head
+# The keypoint order's 180-degree twin (front and back exchanged), as dronekey.model.HEADING_TWIN.
+HEADING_TWIN = [2, 3, 0, 1]
 # ImageNet statistics on RGB in [0, 1], as the paper's reference preprocessing.
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
@@ -61,11 +73,14 @@ class RawOutputs(NamedTuple):
     keypoints : (B, K, 2) float32, normalised crop units (0 = left/top edge, 1 = right/bottom edge).
     presence : (B,) float32, probability that the crop holds a drone.
     gate : (B, N) float32, per-layer gate weights.
+    heading : (B,) float32, probability that ``keypoints`` are in the spec's order and not the
+        180-degree twin, or None for a model without a front/back head.
     """
 
     keypoints: np.ndarray
     presence: np.ndarray
     gate: np.ndarray
+    heading: np.ndarray | None = None
 
 
 def default_model_path() -> Path:
@@ -138,9 +153,34 @@ def mirrored_back(keypoints: np.ndarray) -> np.ndarray:
 
 
 def mirror_averaged(raw: RawOutputs, n: int) -> RawOutputs:
-    """Average the outputs of ``n`` crops (first half of ``raw``) and their mirrors (second half)."""
-    kp = 0.5 * (raw.keypoints[:n] + mirrored_back(raw.keypoints[n:]))
-    return RawOutputs(kp.astype(np.float32), 0.5 * (raw.presence[:n] + raw.presence[n:]), raw.gate[:n])
+    """Average the outputs of ``n`` crops (first half of ``raw``) and their mirrors (second half).
+
+    With a front/back head the two answers may come out in twin orders (the network may give any
+    order when it also says which one it gave): the mirrored answer is first put in whichever of
+    its order and its twin is closer to the direct one, its heading probability flipped with it.
+    """
+    direct, mirrored = raw.keypoints[:n], mirrored_back(raw.keypoints[n:])
+    heading = None
+    if raw.heading is not None:
+        twin = mirrored[:, HEADING_TWIN]
+        use_twin = np.abs(twin - direct).mean(axis=(1, 2)) < np.abs(mirrored - direct).mean(axis=(1, 2))
+        mirrored = np.where(use_twin[:, None, None], twin, mirrored)
+        h_mirror = np.where(use_twin, 1.0 - raw.heading[n:], raw.heading[n:])
+        heading = (0.5 * (raw.heading[:n] + h_mirror)).astype(np.float32)
+    kp = 0.5 * (direct + mirrored)
+    presence = 0.5 * (raw.presence[:n] + raw.presence[n:])
+    return RawOutputs(kp.astype(np.float32), presence, raw.gate[:n], heading)
+
+
+def in_heading_order(raw: RawOutputs) -> RawOutputs:
+    """Apply the front/back head's decision: crops it scores below 0.5 get the twin order, and
+    ``heading`` becomes the probability of the order returned (>= 0.5). Unchanged without a head."""
+    if raw.heading is None:
+        return raw
+    flip = raw.heading < 0.5
+    kp = np.where(flip[:, None, None], raw.keypoints[:, HEADING_TWIN], raw.keypoints)
+    heading = np.where(flip, 1.0 - raw.heading, raw.heading).astype(np.float32)
+    return RawOutputs(kp.astype(np.float32), raw.presence, raw.gate, heading)
 
 
 class KeypointModel:
@@ -217,6 +257,8 @@ class KeypointModel:
                 f"{self.path}: execution providers {failed} failed to load (in use: {self.providers})"
             )
         self._check_io()
+        self.has_heading = HEADING_OUTPUT in [o.name for o in self.session.get_outputs()]
+        self._outputs = list(OUTPUT_NAMES) + ([HEADING_OUTPUT] if self.has_heading else [])
         self.metadata = self._read_metadata()
         size = self.metadata["input_size"]
         if not (isinstance(size, list) and len(size) == 2 and size[0] == size[1] and int(size[0]) > 0):
@@ -271,17 +313,21 @@ class KeypointModel:
         s = self.input_size
         if tensor.dtype != np.float32 or tensor.ndim != 4 or tensor.shape[1:] != (3, s, s):
             raise ValueError(f"tensor must be float32 (B, 3, {s}, {s}), got {tensor.dtype} {tensor.shape}")
-        keypoints, presence, gate = self.session.run(list(OUTPUT_NAMES), {INPUT_NAME: tensor})
-        return RawOutputs(keypoints, presence, gate)
+        outputs = self.session.run(self._outputs, {INPUT_NAME: tensor})
+        return RawOutputs(*outputs) if self.has_heading else RawOutputs(*outputs, None)
 
     def postprocess(self, raw: RawOutputs, rois: Sequence[ROI]) -> list[KeypointDetection]:
-        """Map each crop's keypoints back to full-frame pixels through its ``roi`` (x0, y0, side)."""
+        """Map each crop's keypoints back to full-frame pixels through its ``roi`` (x0, y0, side), in
+        the front/back head's order (``in_heading_order``)."""
         if len(rois) != raw.keypoints.shape[0]:
             raise ValueError(f"rois must hold one roi per crop ({raw.keypoints.shape[0]}), got {len(rois)}")
+        raw = in_heading_order(raw)
+        heading = raw.heading if raw.heading is not None else np.full(len(rois), np.nan)
         detections = []
-        for keypoints, presence, roi in zip(raw.keypoints, raw.presence, rois, strict=True):
+        for keypoints, presence, p, roi in zip(raw.keypoints, raw.presence, heading, rois, strict=True):
             roi = tuple(int(v) for v in roi)
-            detections.append(KeypointDetection(from_normalised(keypoints, roi), float(presence), roi))
+            kp = from_normalised(keypoints, roi)
+            detections.append(KeypointDetection(kp, float(presence), roi, float(p)))
         return detections
 
     def detect(self, frame_bgr: np.ndarray, rois: Sequence[ROI]) -> list[KeypointDetection]:

@@ -27,10 +27,30 @@ track deaf to later evidence. Frames that cannot tell the solutions apart add no
 A rotation that fails the gate with no usable alternative is skipped (the position is still used);
 after ``rotation_reset_after`` in a row the orientation is re-initialised from the measurement.
 
+Front and back (the heading twin). Four propeller hubs fit two poses 180 deg apart about the
+body's vertical axis equally well; only the drone's look (the network's front/back head,
+``heading_p``) or its flight can tell them apart. Each track keeps both hypotheses as the log-odds
+``L`` that the front it follows is the drone's front: a measurement is first turned to whichever of
+its pose and its twin is nearer the track (its ``heading_p`` with it), then adds
+``heading_evidence_weight * logit(heading_p)`` (frames are correlated, so each counts for less than
+one independent vote), clipped to ``+-heading_confidence_cap``. When ``L`` falls below
+``-heading_switch_log_odds`` the track turns to the twin and ``L`` changes sign. The published
+``Track.heading_confidence`` is ``tanh(L / 2) = 2 q - 1`` with ``q = sigmoid(L)`` (0: a coin flip,
+1: certain), and the orientation covariance gains the two-point mixture's variance
+``q (1 - q) pi^2`` about the body's vertical axis, so a coin flip reads as pi / 2 rad of yaw
+doubt, never as a confident heading. Measurements without a heading probability (NaN: a model with
+no front/back head) leave ``L`` alone and the confidence unknown (NaN).
+
 Lifecycle: a new track is TENTATIVE; it becomes CONFIRMED after ``confirm_hits`` hits within its
-first ``confirm_window`` frames, or is dropped. A confirmed track without a measurement is
-COASTING (predicted); one that has coasted longer than ``max_coast_s`` is reported once as LOST and
-dropped. Every track that was reported ends with exactly one LOST report.
+first ``confirm_window`` frames whose evidence agrees: their ranges within a factor
+``1 + confirm_range_spread`` of each other (a real drone cannot halve its distance in a sixth of a
+second) and their mean presence at least ``confirm_presence``; otherwise it is dropped. Every
+measurement has passed the pipeline's plausibility gate (``dronekey.plausibility``) before it gets
+here, and a frame may bring several: each unmatched one starts its own tentative hypothesis, so a
+false candidate cannot block the true one, and only the hypotheses whose evidence holds confirm.
+A confirmed track without a measurement is COASTING (predicted); one that has coasted longer than
+``max_coast_s`` is reported once as LOST and dropped. Every track that was reported ends with
+exactly one LOST report.
 """
 
 from __future__ import annotations
@@ -49,7 +69,7 @@ from dronekey.position_filter import ConstantVelocityFilter
 from dronekey.rotations import matrix_to_quat_wxyz
 from dronekey.types import PoseMeasurement, Track, TrackStatus
 
-__all__ = ["TrackPrediction", "TrackState", "Tracker", "TrackerConfig"]
+__all__ = ["TrackPrediction", "TrackState", "Tracker", "TrackerConfig", "twin_measurement", "twin_of"]
 
 log = logging.getLogger(__name__)
 
@@ -84,6 +104,11 @@ class TrackerConfig:
         ``confirm_window`` frames (update calls); otherwise it is dropped.
     max_coast_s : a track without a measurement for longer than this (seconds) is lost.
     max_tracks : live tracks at most; measurements that would start more are ignored.
+    confirm_range_spread : the confirming hits' largest range over their smallest, minus one.
+    confirm_presence : their mean presence score at least this (NaN scores are not counted).
+    heading_evidence_weight : weight of one frame's front/back log-odds.
+    heading_switch_log_odds : log-odds against the followed front at which a track turns around.
+    heading_confidence_cap : the most log-odds a track can gather either way (7: about 1000 to 1).
     """
 
     accel_std_mps2: float = 4.0
@@ -99,6 +124,11 @@ class TrackerConfig:
     confirm_window: int = 5
     max_coast_s: float = 1.0
     max_tracks: int = 4
+    confirm_range_spread: float = 0.5
+    confirm_presence: float = 0.6
+    heading_evidence_weight: float = 0.3
+    heading_switch_log_odds: float = 1.5
+    heading_confidence_cap: float = 7.0
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -196,12 +226,41 @@ class _TrackRecord:
         self.score = score
         self.keypoints_px = keypoints_px
         self.reprojection_px = float(measurement.reprojection_px)
+        self.evidence: deque[tuple[float, float]] = deque(maxlen=config.confirm_window)  # (range, score)
+        self.evidence.append((float(np.linalg.norm(measurement.t)), score))
+        self.heading_log_odds: float | None = None  # None: no front/back evidence yet (NaN inputs)
+        self.heading_cap = config.heading_confidence_cap
+
+    def add_heading_evidence(self, heading_p: float, weight: float) -> None:
+        """Fold one measurement's probability that its front (turned to this track's) is right."""
+        if not math.isfinite(heading_p):
+            return
+        p = min(max(heading_p, 0.02), 0.98)
+        prior = self.heading_log_odds or 0.0
+        value = prior + weight * math.log(p / (1 - p))
+        self.heading_log_odds = max(-self.heading_cap, min(self.heading_cap, value))
+
+    @property
+    def heading_confidence(self) -> float:
+        if self.heading_log_odds is None:
+            return float("nan")
+        return math.tanh(self.heading_log_odds / 2)
 
     def predict_to(self, t_ns: int) -> None:
         dt = (t_ns - self.t_ns) / _NS_PER_S
         self.position.predict(dt)
         self.orientation.predict(dt)
         self.t_ns = t_ns
+
+    def rotation_cov_cam(self) -> np.ndarray:
+        """Orientation covariance in the camera frame, with the front/back doubt about the body's
+        vertical axis (the two-point mixture's variance q (1 - q) pi^2)."""
+        cov = np.array(self.orientation.rotation_cov_cam, dtype=np.float64)
+        if self.heading_log_odds is not None:
+            q = 1.0 / (1.0 + math.exp(-self.heading_log_odds))
+            axis = self.orientation.rotation[:, 2]  # body z (down) in the camera frame
+            cov = cov + q * (1 - q) * math.pi**2 * np.outer(axis, axis)
+        return cov
 
     def to_track(self, status: TrackStatus | None = None) -> Track:
         R = self.orientation.rotation
@@ -213,12 +272,13 @@ class _TrackRecord:
             velocity_mps=self.position.velocity_mps,
             position_cov=self.position.covariance[:3, :3],
             quaternion_wxyz=matrix_to_quat_wxyz(R),
-            rotation_std_rad=np.sqrt(np.clip(np.diag(self.orientation.rotation_cov_cam), 0.0, None)),
+            rotation_std_rad=np.sqrt(np.clip(np.diag(self.rotation_cov_cam()), 0.0, None)),
             keypoints_px=self.keypoints_px,
             score=self.score,
             reprojection_px=self.reprojection_px,
             hits=self.hits,
             age_s=(self.t_ns - self.born_ns) / _NS_PER_S,
+            heading_confidence=self.heading_confidence,
         )
 
 
@@ -246,6 +306,7 @@ class Tracker:
         measurements: Sequence[PoseMeasurement],
         scores: Sequence[float] | None = None,
         keypoints_px: Sequence[np.ndarray | None] | None = None,
+        heading_p: Sequence[float] | None = None,
     ) -> list[Track]:
         """Advance every track to ``t_ns`` and fold in this frame's measurements.
 
@@ -259,6 +320,9 @@ class Tracker:
             Presence score of each measurement, copied to the track it updates (NaN when absent).
         keypoints_px : sequence of (4, 2) arrays or None, optional
             Keypoints each measurement came from, copied to the track it updates.
+        heading_p : sequence of float, optional
+            Probability that each measurement's front is the drone's front (its keypoints are not
+            in the 180-degree twin order); NaN or absent when unknown.
 
         Returns
         -------
@@ -280,13 +344,16 @@ class Tracker:
             None if kp is None else np.array(kp, dtype=np.float64)
             for kp in _per_measurement("keypoints_px", keypoints_px, len(measurements), None)
         ]
+        heading_p = [
+            float(p) for p in _per_measurement("heading_p", heading_p, len(measurements), float("nan"))
+        ]
         t_ns = self._check_time(t_ns)
 
         for track in self._tracks.values():
             track.predict_to(t_ns)
         pairs, unmatched = self._associate(measurements)
         for track_id, j in pairs:
-            self._apply(self._tracks[track_id], measurements[j], scores[j], keypoints_px[j])
+            self._apply(self._tracks[track_id], measurements[j], scores[j], keypoints_px[j], heading_p[j])
         matched = {track_id for track_id, _ in pairs}
 
         reports: list[Track] = []
@@ -307,6 +374,7 @@ class Tracker:
             track = _TrackRecord(
                 self._next_id, t_ns, measurements[j], scores[j], keypoints_px[j], self.config
             )
+            track.add_heading_evidence(heading_p[j], 1.0)  # a new track starts from the network's word
             self._tracks[track.track_id] = track
             self._next_id += 1
         reports.extend(track.to_track() for track in self._tracks.values())
@@ -390,11 +458,18 @@ class Tracker:
         return pairs, [j for j in range(len(measurements)) if j not in used]
 
     def _apply(
-        self, track: _TrackRecord, m: PoseMeasurement, score: float, keypoints_px: np.ndarray | None
+        self,
+        track: _TrackRecord,
+        m: PoseMeasurement,
+        score: float,
+        keypoints_px: np.ndarray | None,
+        heading_p: float = float("nan"),
     ) -> None:
         cfg = self.config
         track.position.update(m.t, m.covariance[:3, :3])
+        m, heading_p = self._update_heading(track, m, heading_p)
         self._update_orientation(track, m)
+        track.evidence.append((float(np.linalg.norm(m.t)), score))
         track.hits += 1
         track.frames += 1
         track.window.append(True)
@@ -403,11 +478,52 @@ class Tracker:
         track.keypoints_px = keypoints_px
         track.reprojection_px = float(m.reprojection_px)
         if track.status is TrackStatus.TENTATIVE:
-            if sum(track.window) >= cfg.confirm_hits:
+            if sum(track.window) >= cfg.confirm_hits and self._evidence_agrees(track):
                 track.status = TrackStatus.CONFIRMED
                 log.info("track %d confirmed", track.track_id)
         else:
             track.status = TrackStatus.CONFIRMED
+
+    def _evidence_agrees(self, track: _TrackRecord) -> bool:
+        """The confirmation rule's consistency: ranges within a factor, presence high enough."""
+        cfg = self.config
+        ranges = [r for r, _ in track.evidence]
+        scores = [sc for _, sc in track.evidence if math.isfinite(sc)]
+        if max(ranges) > (1.0 + cfg.confirm_range_spread) * min(ranges):
+            log.debug(
+                "track %d: ranges %.1f-%.1f m disagree; not confirmed",
+                track.track_id,
+                min(ranges),
+                max(ranges),
+            )
+            return False
+        if scores and float(np.mean(scores)) < cfg.confirm_presence:
+            log.debug("track %d: mean presence %.2f too low; not confirmed", track.track_id, np.mean(scores))
+            return False
+        return True
+
+    def _update_heading(
+        self, track: _TrackRecord, m: PoseMeasurement, heading_p: float
+    ) -> tuple[PoseMeasurement, float]:
+        """Turn ``m`` to the track's front (or its twin, whichever is nearer the track), fold its
+        front/back evidence, and turn the track around when the evidence says its front is the back.
+        Returns the measurement as the track should use it."""
+        cfg = self.config
+        R_track = track.orientation.rotation
+        if not math.isfinite(heading_p):  # no front/back head: the order is the network's, as it is
+            return m, heading_p
+        if _angle(R_track, twin_of(m.R)) < _angle(R_track, m.R):
+            m = twin_measurement(m)
+            heading_p = 1.0 - heading_p
+        track.add_heading_evidence(heading_p, cfg.heading_evidence_weight)
+        if track.heading_log_odds is not None and track.heading_log_odds < -cfg.heading_switch_log_odds:
+            log.info(
+                "track %d: turned around (front/back log-odds %.1f)", track.track_id, track.heading_log_odds
+            )
+            self._reinitialise_orientation(track, twin_of(R_track), m.covariance[3:, 3:])
+            track.heading_log_odds = -track.heading_log_odds
+            m = twin_measurement(m)
+        return m, heading_p
 
     def _update_orientation(self, track: _TrackRecord, m: PoseMeasurement) -> None:
         cfg = self.config
@@ -464,6 +580,31 @@ class Tracker:
         if track.t_ns - track.last_hit_ns > self.config.max_coast_s * _NS_PER_S:
             return True
         return track.status is TrackStatus.TENTATIVE and track.frames >= self.config.confirm_window
+
+
+_HALF_TURN_Z = np.diag([-1.0, -1.0, 1.0])  # 180 deg about the body's z axis
+
+
+def twin_of(R: np.ndarray) -> np.ndarray:
+    """The body -> camera rotation of the heading twin: the same drone turned 180 deg about its
+    vertical (FRD z) axis, which maps the hubs 1 2 3 4 onto 3 4 1 2."""
+    return np.asarray(R) @ _HALF_TURN_Z
+
+
+def twin_measurement(m: PoseMeasurement) -> PoseMeasurement:
+    """``m`` with its rotation (and the IPPE alternative's) turned to the heading twin."""
+    from dataclasses import replace
+
+    alt = m.alternative
+    if alt is not None:
+        alt = (twin_of(alt[0]), alt[1], alt[2])
+    return replace(m, R=twin_of(m.R), alternative=alt)
+
+
+def _angle(A: np.ndarray, B: np.ndarray) -> float:
+    """Rotation angle (rad) between two rotation matrices."""
+    c = (np.trace(np.asarray(A).T @ np.asarray(B)) - 1.0) / 2.0
+    return math.acos(min(1.0, max(-1.0, c)))
 
 
 def _per_measurement(name: str, values, n: int, default) -> list:

@@ -97,7 +97,7 @@ def test_pose_tracker_measures_through_a_front_back_flip():
         if k > 10:
             assert meas is not None
             errors.append(geodesic_angle_deg(meas.R, truth(s)[0]))
-    assert flips >= 6 and poses.order.reordered == flips
+    assert flips >= 6 and poses.order().reordered == flips
     assert max(errors) < 2.0
     track = poses.tracker.predict(round(60 * 1e9 / 30))[0]
     assert geodesic_angle_deg(track.R, truth(2.0)[0]) < 3.0
