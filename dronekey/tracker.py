@@ -77,7 +77,7 @@ _NS_PER_S = 1_000_000_000
 _FORBIDDEN = 1e12  # assignment cost of a gated-out pair
 
 
-_MAY_BE_ZERO = frozenset()
+_MAY_BE_ZERO = frozenset({"heading_from_motion"})
 
 
 @dataclass(frozen=True)
@@ -109,6 +109,11 @@ class TrackerConfig:
     heading_evidence_weight : weight of one frame's front/back log-odds.
     heading_switch_log_odds : log-odds against the followed front at which a track turns around.
     heading_confidence_cap : the most log-odds a track can gather either way (7: about 1000 to 1).
+    heading_from_motion : log-odds per frame given to "the nose points where the drone flies"
+        (multirotors mostly fly nose-first): ``w cos(nose, horizontal velocity) min(1, speed / 2
+        m/s)``, the horizontal plane taken as the one normal to the drone's own vertical axis. 0
+        (default) turns it off: a drone that crabs sideways or flies backwards (a scripted camera
+        drone, the Tab. I sequences) would be read the wrong way round.
     """
 
     accel_std_mps2: float = 4.0
@@ -129,6 +134,7 @@ class TrackerConfig:
     heading_evidence_weight: float = 0.3
     heading_switch_log_odds: float = 1.5
     heading_confidence_cap: float = 7.0
+    heading_from_motion: float = 0.0
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -516,6 +522,8 @@ class Tracker:
             m = twin_measurement(m)
             heading_p = 1.0 - heading_p
         track.add_heading_evidence(heading_p, cfg.heading_evidence_weight)
+        if cfg.heading_from_motion > 0:
+            track.add_heading_evidence(_nose_first_p(R_track, track.position.velocity_mps, cfg), 1.0)
         if track.heading_log_odds is not None and track.heading_log_odds < -cfg.heading_switch_log_odds:
             log.info(
                 "track %d: turned around (front/back log-odds %.1f)", track.track_id, track.heading_log_odds
@@ -599,6 +607,18 @@ def twin_measurement(m: PoseMeasurement) -> PoseMeasurement:
     if alt is not None:
         alt = (twin_of(alt[0]), alt[1], alt[2])
     return replace(m, R=twin_of(m.R), alternative=alt)
+
+
+def _nose_first_p(R: np.ndarray, velocity: np.ndarray, config: TrackerConfig) -> float:
+    """Probability that the followed front is right, from the nose-first prior on the velocity."""
+    up = R[:, 2]  # body z (down) in the camera frame: the drone's own vertical
+    v = np.asarray(velocity, dtype=np.float64)
+    v_h = v - (v @ up) * up
+    speed = float(np.linalg.norm(v_h))
+    if speed < 1e-6:
+        return 0.5
+    log_odds = config.heading_from_motion * float(R[:, 0] @ v_h / speed) * min(1.0, speed / 2.0)
+    return 1.0 / (1.0 + math.exp(-log_odds))
 
 
 def _angle(A: np.ndarray, B: np.ndarray) -> float:

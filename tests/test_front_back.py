@@ -110,3 +110,22 @@ def test_inconsistent_ranges_never_confirm_and_do_not_block_the_consistent_hypot
     confirmed = [i for i, s in statuses.items() if TrackStatus.CONFIRMED in s]
     assert len(confirmed) == 1
     assert len(statuses) >= 2
+
+
+def test_nose_first_motion_tells_the_front_when_asked_and_only_then():
+    """A symmetric drone (heading_p 0.5 every frame) flying nose-first along +x of the camera:
+    with heading_from_motion the track learns which way it faces; without, it stays in doubt."""
+    R = seen_from_below(0.0)  # nose along the camera's +z (away), level
+    nose = R[:, 0]
+    for weight, expect_sure in ((0.0, False), (0.5, True)):
+        tracker = Tracker(TrackerConfig(heading_from_motion=weight))
+        # Born facing backwards: the motion must turn it around.
+        tracker.update(t_ns(0), [twin_measurement(measurement(R, [0.0, 0.0, 8.0]))], [0.99], None, [0.5])
+        for k in range(1, 60):
+            p = np.array([0.0, 0.0, 8.0]) + nose * 3.0 * k / 30  # 3 m/s forward
+            (track,) = tracker.update(t_ns(k), [measurement(R, p)], [0.99], None, [0.5])
+        angle = geodesic_angle_deg(quat_wxyz_to_matrix(track.quaternion_wxyz), R)
+        if expect_sure:
+            assert track.heading_confidence > 0.8 and angle < 5.0
+        else:
+            assert abs(track.heading_confidence) < 0.1
