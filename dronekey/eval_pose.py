@@ -28,7 +28,15 @@ from dronekey.metrics import ap_kp, oks_drone, sr
 from dronekey.rotations import geodesic_angle_deg, quat_wxyz_to_matrix
 from dronekey.types import PUBLISHED_STATUSES, Frame, KeypointDetection, TrackStatus
 
-__all__ = ["PoseErrors", "SequenceResult", "evaluate_sequence", "pose_errors", "sequence_spec"]
+__all__ = [
+    "PoseErrors",
+    "SequenceResult",
+    "evaluate_sequence",
+    "pose_errors",
+    "published_track_rank",
+    "rounded",
+    "sequence_spec",
+]
 
 log = logging.getLogger(__name__)
 
@@ -45,9 +53,9 @@ class PoseErrors:
     def to_dict(self) -> dict:
         return {
             "frames": self.frames,
-            "mae_angle_deg": _r(self.mae_angle_deg),
-            "rmse_m": _r(self.rmse_m),
-            "mae_abs_m": _r(self.mae_abs_m),
+            "mae_angle_deg": rounded(self.mae_angle_deg),
+            "rmse_m": rounded(self.rmse_m),
+            "mae_abs_m": rounded(self.mae_abs_m),
         }
 
 
@@ -66,7 +74,7 @@ def pose_errors(R_pred, t_pred, R_gt, t_gt) -> PoseErrors:
     )
 
 
-def _track_rank(track) -> tuple:
+def published_track_rank(track) -> tuple:
     """Which published track is the pipeline's estimate: confirmed (measured this frame) before
     coasting, then the most hits, then the oldest id."""
     return (track.status != TrackStatus.CONFIRMED, -track.hits, track.track_id)
@@ -92,19 +100,19 @@ class SequenceResult:
             "sequence": self.sequence,
             "frames": self.frames,
             "detected_frames": self.detected_frames,
-            "mae_angle_deg": _r(self.filtered.mae_angle_deg),
-            "rmse_m": _r(self.filtered.rmse_m),
-            "mae_abs_m": _r(self.filtered.mae_abs_m),
-            "ap_kp": _r(self.ap_kp),
-            "sr90": _r(self.sr90),
-            "sr95": _r(self.sr95),
-            "fps": _r(self.fps),
+            "mae_angle_deg": rounded(self.filtered.mae_angle_deg),
+            "rmse_m": rounded(self.filtered.rmse_m),
+            "mae_abs_m": rounded(self.filtered.mae_abs_m),
+            "ap_kp": rounded(self.ap_kp),
+            "sr90": rounded(self.sr90),
+            "sr95": rounded(self.sr95),
+            "fps": rounded(self.fps),
             "raw_pnp": self.raw.to_dict(),
         }
         return out
 
 
-def _r(v: float, nd: int = 4) -> float | None:
+def rounded(v: float, nd: int = 4) -> float | None:
     return None if v is None or not np.isfinite(v) else round(float(v), nd)
 
 
@@ -170,7 +178,7 @@ def evaluate_sequence(
         n_frames += 1
         if ann is None or not getattr(ann, "has_pose", True):
             continue
-        live = sorted((tr for tr in tracks if tr.status in PUBLISHED_STATUSES), key=_track_rank)
+        live = sorted((tr for tr in tracks if tr.status in PUBLISHED_STATUSES), key=published_track_rank)
         s["t"].append(sf.t_ns / 1e9)
         s["R_gt"].append(ann.rotation)
         s["t_gt"].append(ann.translation)
