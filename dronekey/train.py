@@ -404,6 +404,7 @@ def train(args: argparse.Namespace) -> dict:
             "val_samples": args.val_samples,
             "patience": args.patience,
             "presence_steps": args.presence_steps,
+            "heading_weight": args.heading_weight,
         }.items()
         if v is not None
     }
@@ -703,6 +704,7 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--val-samples", type=int)
     g.add_argument("--patience", type=int)
     g.add_argument("--presence-steps", type=int, help="head-only presence steps after the epochs (0: none)")
+    g.add_argument("--heading-weight", type=float, help="weight of the front/back head's BCE")
     return p
 
 
