@@ -90,6 +90,10 @@ class Recipe:
     symmetric_until: float = 0.25
     presence_weight: float = 0.25
     heading_weight: float = 0.5  # BCE of the front/back head (networks with DroneKeyConfig.heading_head)
+    # + w x (L1 to the labelled order - L1 to the aligned one): the pull towards the labelled front,
+    # kept below the aligned L1's own weight so that a crop whose front cannot be told is still
+    # cheaper at one of the two orders than at their mean (see align_to_twin)
+    order_weight: float = 0.0
     presence_steps: int = 0  # head-only presence steps on the best network after the epochs, see below
     val_samples: int = 1500
     patience: int = 12
@@ -112,6 +116,7 @@ def _recipes() -> dict[str, Recipe]:
             warmup_steps=100,
             l1_weight=4.0,
             symmetric_weight=4.0,
+            order_weight=2.0,
             presence_steps=300,
         ),
         "paper": Recipe(
@@ -237,6 +242,13 @@ def align_to_twin(pred, gt):
     Returns (aligned labels (B, K, 2), in_order (B,) bool: the spec's order was the closer one).
     ``in_order`` is the front/back head's target: the head learns to tell when the points came out
     in the twin order, and the points are not pulled onto their mean when the front is unreadable.
+
+    Why the recipe's ``order_weight`` stays below the aligned L1 weight: for a crop whose front
+    cannot be told (labels in either order with even odds), a prediction on one of the two orders
+    costs ``order_weight * D / 2`` in expectation (D: the L1 distance between them), the mean of the
+    two costs ``l1_weight * D / 2``; one of the orders is cheaper, so the points do not collapse, while
+    crops whose front can be told are pulled to the labelled order and the head learns how sure that
+    is.
     """
     import torch
 
@@ -510,6 +522,11 @@ def train(args: argparse.Namespace) -> dict:
             loss_kp = loss_fn(pred, target, t_sched, present)
             if recipe.l1_weight and bool(present.any()):
                 loss_kp = loss_kp + recipe.l1_weight * (pred[present] - target[present]).abs().mean()
+            if in_order is not None and recipe.order_weight and bool(present.any()):
+                excess = (pred[present] - kp[present]).abs().mean() - (
+                    pred[present] - target[present]
+                ).abs().mean()
+                loss_kp = loss_kp + recipe.order_weight * excess
             w_sym = recipe.symmetric_weight * max(0.0, 1.0 - step / (recipe.symmetric_until * total_steps))
             if w_sym > 0 and bool(present.any()):
                 loss_kp = loss_kp + w_sym * symmetric_l1(pred[present], kp[present])
