@@ -148,6 +148,19 @@ def draw_occluder(
     return mask > 127
 
 
+def _inward_point(
+    rng: np.random.Generator,
+    edge: tuple[float, float],
+    inward: tuple[float, float],
+    reach: float,
+    spread: float,
+) -> tuple[float, float]:
+    """A point up to ``reach`` px in from ``edge`` along ``inward``, scattered ``spread`` x reach along it."""
+    d = rng.uniform(0, reach)
+    along = rng.normal(0, reach * spread)
+    return edge[0] + inward[0] * d + along * inward[1], edge[1] + inward[1] * d + along * inward[0]
+
+
 def draw_edge_clutter(img: np.ndarray, rng: np.random.Generator, count: int = 1) -> np.ndarray:
     """Clouds, building edges, trees or wires entering ``img`` from its edges, in place.
 
@@ -172,11 +185,7 @@ def draw_edge_clutter(img: np.ndarray, rng: np.random.Generator, count: int = 1)
         one = np.zeros((h, w), np.uint8)
         if kind == "cloud":
             for _ in range(int(rng.integers(4, 12))):
-                d = rng.uniform(0, reach)
-                cx, cy = (
-                    ex + nx * d + rng.normal(0, reach * 0.5) * ny,
-                    ey + ny * d + rng.normal(0, reach * 0.5) * nx,
-                )
+                cx, cy = _inward_point(rng, (ex, ey), (nx, ny), reach, 0.5)
                 r = reach * rng.uniform(0.2, 0.6)
                 cv2.ellipse(
                     one, (int(cx), int(cy)), (int(r), int(r * rng.uniform(0.4, 0.9))), 0, 0, 360, 255, -1
@@ -194,11 +203,7 @@ def draw_edge_clutter(img: np.ndarray, rng: np.random.Generator, count: int = 1)
             col = np.clip(rng.uniform(20, 200) + rng.normal(0, 12, 3), 0, 255)
         elif kind == "tree":
             for _ in range(int(rng.integers(6, 20))):
-                d = rng.uniform(0, reach)
-                cx, cy = (
-                    ex + nx * d + rng.normal(0, reach * 0.4) * ny,
-                    ey + ny * d + rng.normal(0, reach * 0.4) * nx,
-                )
+                cx, cy = _inward_point(rng, (ex, ey), (nx, ny), reach, 0.4)
                 r = reach * rng.uniform(0.05, 0.25)
                 ang = rng.uniform(0, 180)
                 cv2.ellipse(
