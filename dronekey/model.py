@@ -106,12 +106,17 @@ class DroneKeyConfig:
     edge_depths : tuple of 4 ints
         Edge backbone separable residual blocks per stage.
     heading_head : bool
-        Add the front/back head (not in the paper): a logit of "the keypoints come out in the
-        spec's order, not its 180-degree twin" (``HEADING_TWIN``). It reads the normalised CNN token
-        grid (where the nose, gimbal and battery are) and the predicted keypoints. Trained with it,
-        the keypoint losses take whichever of the two orders the prediction is closer to, so a crop
-        whose front cannot be told does not pull the four keypoints onto their mean; the head
-        carries the front/back decision and how sure it is (``sigmoid(heading_logit)``).
+        Add the front/back head (not in the paper). It regresses, from the normalised CNN token grid
+        (where the nose, gimbal and battery are), the drone's nose direction in the crop: the unit
+        vector from the rear propellers' midpoint to the front ones' (``DroneKeyOutput.nose``).
+        Trained by squared error, it predicts the mean of that vector given the crop, which shrinks
+        to zero when the front cannot be told; against the predicted keypoints' own front axis v,
+        p = (1 + nose . v) / 2 is then the probability that the keypoints are in the spec's order
+        and not its 180-degree twin (``HEADING_TWIN``), calibrated by construction for the
+        squared-error optimum. ``heading_logit`` is logit(p). Trained with it, the keypoint losses
+        take whichever of the two orders the prediction is closer to (plus a weaker pull towards
+        the labelled one), so a crop whose front cannot be told does not pull the four keypoints
+        onto their mean.
     """
 
     backbone: str = "edge"
@@ -211,12 +216,22 @@ class DroneKeyOutput(NamedTuple):
     gate : (B, N) softmax weights of the layers' compact representations (paper Fig. 8).
     heading_logit : (B,) logit of 'keypoints are in the spec's order, not the 180-degree twin', or
         None without ``DroneKeyConfig.heading_head``.
+    nose : (B, 2) the regressed nose direction in the crop (x right, y down; length <= 1 about,
+        shorter when the front is uncertain), or None without the head.
     """
 
     keypoints: torch.Tensor
     presence_logit: torch.Tensor
     gate: torch.Tensor
     heading_logit: torch.Tensor | None = None
+    nose: torch.Tensor | None = None
+
+
+def front_axis(keypoints: torch.Tensor) -> torch.Tensor:
+    """Unit vector (B, 2) from the rear propellers' midpoint to the front ones' (order 1 FR, 2 RR,
+    3 RL, 4 FL), in crop units; the 180-degree twin order gives its opposite."""
+    v = 0.5 * (keypoints[:, 0] + keypoints[:, 3]) - 0.5 * (keypoints[:, 1] + keypoints[:, 2])
+    return v / (v.norm(dim=1, keepdim=True) + 1e-6)
 
 
 def sine_positional_encoding_2d(grid: int, d_model: int) -> torch.Tensor:
@@ -282,9 +297,10 @@ class DroneKeyNet(nn.Module):
         self.gate = nn.Linear(d, n)  # eq. 4
         self.presence = nn.Linear(d, 1)
         if config.heading_head:
-            tokens_in = config.grid_size**2 * d
+            # GELU, not ReLU: on a target that is noise early in training, ReLU units all died
+            # (a constant output) within eight epochs of the first run.
             self.heading = nn.Sequential(
-                nn.Linear(tokens_in + 2 * k, HEADING_HIDDEN), nn.ReLU(), nn.Linear(HEADING_HIDDEN, 1)
+                nn.Linear(config.grid_size**2 * d, HEADING_HIDDEN), nn.GELU(), nn.Linear(HEADING_HIDDEN, 2)
             )
         self._init_heads()
 
@@ -319,12 +335,14 @@ class DroneKeyNet(nn.Module):
         keypoints = torch.relu(gated_sum).reshape(-1, self.config.num_keypoints, 2)
         presence_features = projected.mean(dim=1) if self.config.presence_input == "tokens" else last
         presence_logit = self.presence(presence_features).squeeze(-1)
-        heading_logit = None
+        heading_logit = nose = None
         if self.config.heading_head:
             grid = self.token_norm(projected).flatten(1)  # (B, P d): the token grid keeps where things are
-            where = keypoints.detach().flatten(1)  # the head judges the order, it does not move points
-            heading_logit = self.heading(torch.cat([grid, where], dim=1)).squeeze(-1)
-        return DroneKeyOutput(keypoints, presence_logit, gate, heading_logit)
+            nose = self.heading(grid)
+            axis = front_axis(keypoints.detach())  # the head judges the order, it does not move points
+            p = (0.5 * (1.0 + (nose * axis).sum(dim=1))).clamp(1e-4, 1.0 - 1e-4)
+            heading_logit = torch.log(p) - torch.log1p(-p)
+        return DroneKeyOutput(keypoints, presence_logit, gate, heading_logit, nose)
 
 
 def _encoder_layer_forward(layer: nn.TransformerEncoderLayer, x: torch.Tensor) -> torch.Tensor:

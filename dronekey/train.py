@@ -63,6 +63,8 @@ from dronekey.runtime import IMAGENET_MEAN, IMAGENET_STD, preprocess_crops
 
 log = logging.getLogger("dronekey.train")
 
+# Shortest front-to-rear midpoint distance (normalised crop units) for which the nose is learned.
+NOSE_MIN_AXIS = 0.03
 # Front/back swap of the keypoint order (1 FR <-> 2 RR, 3 RL <-> 4 FL): the hard failure mode.
 FRONT_BACK_SWAP = [1, 0, 3, 2]
 
@@ -89,7 +91,9 @@ class Recipe:
     symmetric_weight: float = 0.0  # + w x (1 - progress / symmetric_until) x order-free L1, see below
     symmetric_until: float = 0.25
     presence_weight: float = 0.25
-    heading_weight: float = 0.5  # BCE of the front/back head (networks with DroneKeyConfig.heading_head)
+    heading_weight: float = (
+        1.0  # nose_loss of the front/back head (networks with DroneKeyConfig.heading_head)
+    )
     # + w x (L1 to the labelled order - L1 to the aligned one): the pull towards the labelled front,
     # kept below the aligned L1's own weight so that a crop whose front cannot be told is still
     # cheaper at one of the two orders than at their mean (see align_to_twin)
@@ -234,6 +238,18 @@ def symmetric_l1(pred, gt):
 
     per = torch.stack([(pred - gt[:, list(perm)]).abs().mean(dim=(1, 2)) for perm in SYMMETRIES], dim=1)
     return per.min(dim=1).values.mean()
+
+
+def nose_loss(nose, gt):
+    """Squared error of the regressed nose direction against the labels' front axis, over the
+    crops whose front and rear midpoints lie apart (a drone seen nose-on has no axis to learn)."""
+    from dronekey.model import front_axis
+
+    mid = 0.5 * (gt[:, 0] + gt[:, 3]) - 0.5 * (gt[:, 1] + gt[:, 2])
+    usable = mid.norm(dim=1) > NOSE_MIN_AXIS
+    if not bool(usable.any()):
+        return nose.sum() * 0.0
+    return ((nose[usable] - front_axis(gt[usable])) ** 2).sum(dim=1).mean()
 
 
 def align_to_twin(pred, gt):
@@ -531,9 +547,8 @@ def train(args: argparse.Namespace) -> dict:
             if w_sym > 0 and bool(present.any()):
                 loss_kp = loss_kp + w_sym * symmetric_l1(pred[present], kp[present])
             loss = loss_kp + recipe.presence_weight * bce(out_net.presence_logit.float(), present.float())
-            if in_order is not None and bool(present.any()):
-                heading = out_net.heading_logit.float()[present]
-                loss = loss + recipe.heading_weight * bce(heading, in_order[present].float())
+            if out_net.nose is not None and bool(present.any()):
+                loss = loss + recipe.heading_weight * nose_loss(out_net.nose.float()[present], kp[present])
             opt.zero_grad(set_to_none=True)
             loss.backward()
             torch.nn.utils.clip_grad_norm_(params, 2.0)
@@ -721,7 +736,7 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--val-samples", type=int)
     g.add_argument("--patience", type=int)
     g.add_argument("--presence-steps", type=int, help="head-only presence steps after the epochs (0: none)")
-    g.add_argument("--heading-weight", type=float, help="weight of the front/back head's BCE")
+    g.add_argument("--heading-weight", type=float, help="weight of the front/back head's nose loss")
     return p
 
 
