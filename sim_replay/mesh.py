@@ -4,10 +4,11 @@ The propeller hubs sit exactly on the spec's ``keypoints_3d`` (z = 0 is the prop
 down): they are the labels and never move. Everything else is a look that real drones do not share,
 so it is drawn at random (``BodyShape.random``, ``DroneStyle.random``): body length, width and
 height, nose taper, a battery bulge at the rear, the gimbal (under the nose, on top, or none), arm
-thickness, propeller guards, landing legs, the light stripe (anywhere or absent) and the LEDs
-(absent on many drones; any colours; under the motors, under the arms or on the body; front/back
-convention either way). No single part marks a keypoint or the front in every drone, so a network
-trained on these renders has to read the whole shape. The default ``BodyShape()`` is the first
+thickness, rear arms that leave the body lower (folding-arm drones), propeller guards, landing
+legs, the light stripe (anywhere or absent) and the LEDs (absent on many drones; any colours; under
+the motors, under the arms or on the body; front/back convention either way). No single part marks
+a keypoint or the front in every drone, so a network trained on these renders has to read the whole
+shape. The default ``BodyShape()`` is the first
 round's drone (gimbal under the nose, LEDs under the motors).
 
 Every opaque part is a convex polyhedron, so the renderer can test a line of sight against it
@@ -84,6 +85,7 @@ class BodyShape:
     gimbal: str = "nose"
     gimbal_size: float = 1.0  # times the default (half the body height)
     arm_scale: float = 1.0
+    rear_arm_drop: float = 0.0  # rear arms leave the body this fraction of its height lower (folding arms)
     guards: bool = False
     legs: bool = False
     stripe: str = "front"  # "front", "rear", "full" or "none"
@@ -102,7 +104,7 @@ class BodyShape:
     @classmethod
     def random(cls, rng: np.random.Generator, leds: bool = True) -> BodyShape:
         """A consumer-to-prosumer quadcopter; ``leds`` False gives a shape with no LED parts."""
-        gimbal = str(rng.choice(GIMBAL_PLACES, p=[0.6, 0.15, 0.25]))
+        gimbal = str(rng.choice(GIMBAL_PLACES, p=[0.7, 0.15, 0.15]))
         return cls(
             length=float(rng.uniform(0.45, 0.8)),
             width=float(rng.uniform(0.2, 0.38)),
@@ -111,8 +113,9 @@ class BodyShape:
             nose_length=float(rng.uniform(0.03, 0.12)) if rng.random() < 0.35 else 0.0,
             battery=float(rng.uniform(0.2, 0.4)) if rng.random() < 0.45 else 0.0,
             gimbal=gimbal,
-            gimbal_size=float(rng.uniform(0.6, 1.5)),
+            gimbal_size=float(rng.uniform(0.8, 1.6)),
             arm_scale=float(rng.uniform(0.6, 1.8)),
+            rear_arm_drop=float(rng.uniform(0.2, 0.7)) if rng.random() < 0.4 else 0.0,
             guards=bool(rng.random() < 0.15),
             legs=bool(rng.random() < 0.3),
             stripe=str(rng.choice(["front", "rear", "full", "none"], p=[0.25, 0.15, 0.15, 0.45])),
@@ -463,7 +466,8 @@ def _build_mesh(spec: DroneSpec, shape: BodyShape) -> DroneMesh:
         lit = shape.led_front if front else shape.led_rear
         role = "front_led" if front else "rear_led"
         # Arm from the fuselage side to the motor, level with the shell's top half.
-        root = np.array([hub[0] * 0.35, np.sign(hub[1]) * width * 0.4, z_top + height * 0.25])
+        drop = 0.0 if front else shape.rear_arm_drop * height
+        root = np.array([hub[0] * 0.35, np.sign(hub[1]) * width * 0.4, z_top + height * 0.25 + drop])
         tip = np.array([hub[0], hub[1], motor_h * 0.75])
         v, f = _prism(_rect(arm_w, arm_w * 0.8), root, tip, -down)
         parts.append(_part(f"arm{i + 1}", v, f, "arms", rotor=i))
