@@ -211,6 +211,8 @@ class Localizer:
             return []
         thr = self.config.presence_threshold
         hits = [d for d in self.model.detect(frame_bgr, rois) if d.presence >= thr]
+        # A candidate on a live track's drone is not refined: the track's own crop measures it.
+        hits = [d for d in hits if not _on_any(box_from_keypoints(d.keypoints_px, self.spec), exclude)]
         if not hits:
             return []
         refined = self.refine_many(frame_bgr, hits)
@@ -220,7 +222,7 @@ class Localizer:
         boxes = list(exclude)
         for det in found:
             box = box_from_keypoints(det.keypoints_px, self.spec)
-            if any(box_overlap(box, other) > 1 / 3 for other in boxes):
+            if _on_any(box, boxes):
                 continue
             kept.append(det)
             boxes.append(box)
@@ -272,6 +274,11 @@ def propose_rois(
         if len(rois) >= cfg.max_candidates:
             break
     return rois, small
+
+
+def _on_any(box: Box, others: Sequence[Box]) -> bool:
+    """Whether ``box`` overlaps any of ``others`` by more than a third of the smaller one."""
+    return any(box_overlap(box, other) > 1 / 3 for other in others)
 
 
 def box_overlap(a: Box, b: Box) -> float:
