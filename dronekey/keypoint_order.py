@@ -21,11 +21,14 @@ from collections import deque
 
 import numpy as np
 
-__all__ = ["SYMMETRIES", "KeypointOrder"]
+__all__ = ["HEADING_TWIN", "SYMMETRIES", "KeypointOrder"]
 
 # The keypoint rectangle's symmetries (order 1 FR, 2 RR, 3 RL, 4 FL): identity, front/back,
 # left/right, both (a 180 deg turn).
 SYMMETRIES = ((0, 1, 2, 3), (1, 0, 3, 2), (3, 2, 1, 0), (2, 3, 0, 1))
+# The 180-degree twin (front and back exchanged by a half turn about the body's vertical axis):
+# the symmetry no geometry can tell apart, only the drone's look (the front/back head).
+HEADING_TWIN = list(SYMMETRIES[3])
 
 
 class KeypointOrder:

@@ -31,6 +31,7 @@ import torch
 from torch import nn
 
 from dronekey.backbones import EdgeBackbone, ResNet50Trunk
+from dronekey.keypoint_order import HEADING_TWIN
 
 __all__ = [
     "HEADING_TWIN",
@@ -53,10 +54,6 @@ _CR_INIT_SCALE = 0.1
 
 
 HEADING_HIDDEN = 128
-# The keypoint order's 180-degree twin (1 FR, 2 RR, 3 RL, 4 FL -> 3, 4, 1, 2): the same four
-# propellers with front and back exchanged by a half turn about the body's vertical axis, which is
-# all a drone that looks the same front and back can tell apart.
-HEADING_TWIN = (2, 3, 0, 1)
 
 
 @dataclass(frozen=True)

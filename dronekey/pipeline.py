@@ -264,13 +264,12 @@ class TrackingPipeline:
         self.frames += 1
         timings: dict[str, float] = {}
         t0 = time.perf_counter()
-        measured, rejections, tracked_confirmed = self._track_crops(frame, w, h)
+        measured, taken, rejections, tracked_confirmed = self._track_crops(frame, w, h)
         timings["track_crop"] = _ms(t0)
         search = not tracked_confirmed or (self.search_every and self.frames % self.search_every == 0)
         if search:
             t1 = time.perf_counter()
-            exclude = [box_from_keypoints(m.detection.keypoints_px, self.spec) for m in measured]
-            for det in self.localizer.acquire_all(frame.bgr, exclude):
+            for det in self.localizer.acquire_all(frame.bgr, taken):
                 measurement, rejection = self.poses.measure_detection(det, None)
                 if measurement is not None:
                     measured.append(Measured(det, measurement))
@@ -293,9 +292,9 @@ class TrackingPipeline:
             tuple(measured),
         )
 
-    def _track_crops(self, frame: Frame, w: int, h: int) -> tuple[list[Measured], list[str], bool]:
-        """One crop per live track (best first), one batch: the poses they gave, why the others
-        gave none, and whether a confirmed track was measured."""
+    def _track_crops(self, frame: Frame, w: int, h: int) -> tuple[list[Measured], list, list[str], bool]:
+        """One crop per live track (best first), one batch: the poses they gave, their keypoint
+        boxes, why the others gave none, and whether a confirmed track was measured."""
         owners, boxes = [], []
         for p in self.poses.predictions(frame.t_ns):
             box = box_from_pose(self.camera, self.spec, p.R, p.t)
@@ -321,7 +320,7 @@ class TrackingPipeline:
             measured.append(Measured(det, measurement, p.track_id))
             taken.append(box)
         confirmed = {p.track_id for p in owners if p.status == TrackStatus.CONFIRMED}
-        return measured, rejections, any(m.track_id in confirmed for m in measured)
+        return measured, taken, rejections, any(m.track_id in confirmed for m in measured)
 
 
 def _overlaps_frame(box, w: int, h: int) -> bool:

@@ -32,6 +32,7 @@ import onnxruntime as ort
 import psutil
 
 from dronekey.crop import ROI, crop_square, from_normalised
+from dronekey.keypoint_order import HEADING_TWIN
 from dronekey.types import KeypointDetection
 
 __all__ = [
@@ -55,8 +56,6 @@ LOG = logging.getLogger(__name__)
 INPUT_NAME = "image"
 OUTPUT_NAMES = ("keypoints", "presence", "gate")
 HEADING_OUTPUT = "heading"  # optional fourth output: sigmoid of the front/back head
-# The keypoint order's 180-degree twin (front and back exchanged), as dronekey.model.HEADING_TWIN.
-HEADING_TWIN = [2, 3, 0, 1]
 # ImageNet statistics on RGB in [0, 1], as the paper's reference preprocessing.
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)

@@ -59,7 +59,7 @@ import logging
 import math
 from collections import deque
 from collections.abc import Sequence
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -601,8 +601,6 @@ def twin_of(R: np.ndarray) -> np.ndarray:
 
 def twin_measurement(m: PoseMeasurement) -> PoseMeasurement:
     """``m`` with its rotation (and the IPPE alternative's) turned to the heading twin."""
-    from dataclasses import replace
-
     alt = m.alternative
     if alt is not None:
         alt = (twin_of(alt[0]), alt[1], alt[2])

@@ -58,7 +58,7 @@ import numpy as np
 
 from dronekey.coco_crops import CocoDataError
 from dronekey.crop import CropPolicy
-from dronekey.keypoint_order import SYMMETRIES
+from dronekey.keypoint_order import HEADING_TWIN, SYMMETRIES
 from dronekey.runtime import IMAGENET_MEAN, IMAGENET_STD, preprocess_crops
 
 log = logging.getLogger("dronekey.train")
@@ -268,9 +268,7 @@ def align_to_twin(pred, gt):
     """
     import torch
 
-    from dronekey.model import HEADING_TWIN
-
-    twin = gt[:, list(HEADING_TWIN)]
+    twin = gt[:, HEADING_TWIN]
     in_order = (pred - gt).abs().mean(dim=(1, 2)) <= (pred - twin).abs().mean(dim=(1, 2))
     return torch.where(in_order[:, None, None], gt, twin), in_order
 
@@ -288,7 +286,6 @@ def evaluate(net, data: dict, batch: int = 128) -> dict:
     import torch
 
     from dronekey.metrics import ap_kp, oks_drone, roc_auc, sr
-    from dronekey.model import HEADING_TWIN
 
     net.eval()
     S = data["image"].shape[1]
@@ -309,10 +306,10 @@ def evaluate(net, data: dict, batch: int = 128) -> dict:
     extra = {}
     if heads:
         ph = np.concatenate(heads)
-        kp = np.where((ph >= 0.5)[:, None, None], kp, kp[:, list(HEADING_TWIN)])
+        kp = np.where((ph >= 0.5)[:, None, None], kp, kp[:, HEADING_TWIN])
         gt_all = data["keypoints"]
         e_id = np.abs(kp - gt_all).mean(axis=(1, 2))
-        e_tw = np.abs(kp - gt_all[:, list(HEADING_TWIN)]).mean(axis=(1, 2))
+        e_tw = np.abs(kp - gt_all[:, HEADING_TWIN]).mean(axis=(1, 2))
         wrong = (e_tw < e_id)[present]
         confident = (np.abs(2 * ph - 1) >= 0.5)[present]
         extra = {

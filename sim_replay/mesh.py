@@ -17,7 +17,7 @@ exactly (see ``segment_hits``).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 
@@ -167,13 +167,13 @@ class DroneStyle:
         if mode not in LED_MODES:
             raise ValueError(f"leds must be one of {', '.join(LED_MODES)}, got {mode!r}")
         if mode == "red-front":
-            return _replace(self, front_led=_RED, rear_led=_GREEN)
+            return replace(self, front_led=_RED, rear_led=_GREEN)
         if mode == "green-front":
-            return _replace(self, front_led=_GREEN, rear_led=_RED)
+            return replace(self, front_led=_GREEN, rear_led=_RED)
         if mode == "off":
-            return _replace(self, front_led=None, rear_led=None)
+            return replace(self, front_led=None, rear_led=None)
         front, rear = _random_leds(rng if rng is not None else np.random.default_rng())
-        return _replace(self, front_led=front, rear_led=rear)
+        return replace(self, front_led=front, rear_led=rear)
 
     @classmethod
     def random(cls, rng: np.random.Generator) -> DroneStyle:
@@ -220,12 +220,6 @@ class DroneStyle:
             front_led=front,
             rear_led=rear,
         )
-
-
-def _replace(style: DroneStyle, **changes) -> DroneStyle:
-    from dataclasses import replace
-
-    return replace(style, **changes)
 
 
 def _random_leds(rng: np.random.Generator) -> tuple[tuple | None, tuple | None]:

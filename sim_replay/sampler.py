@@ -32,6 +32,7 @@ from scipy.spatial.transform import Rotation
 from dronekey.camera import CameraModel
 from dronekey.crop import CropPolicy, crop_square, to_normalised
 from dronekey.drone_spec import load_spec
+from dronekey.localizer import LocalizerConfig, propose_rois
 from dronekey.rotations import ned_from_camera, rotation_from_euler_deg
 
 from .annotations import HIDDEN
@@ -132,8 +133,6 @@ class CropSampler:
         self._pool_size = max(1, pool_size)
         self._pool: list[np.ndarray] = []
         self._proposals: list[list[tuple[int, int, int]]] = []  # localiser crops per pool background
-        from dronekey.localizer import LocalizerConfig
-
         self._localizer_config = LocalizerConfig(use_motion=False)
         self._refresh_every = max(1, refresh_every)
         self._count = 0
@@ -188,8 +187,6 @@ class CropSampler:
         return bg
 
     def _propose(self, bg: np.ndarray) -> list[tuple[int, int, int]]:
-        from dronekey.localizer import propose_rois
-
         rois, _ = propose_rois(bg, self._localizer_config, self.config.crop.min_side)
         return rois
 
