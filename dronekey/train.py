@@ -98,6 +98,9 @@ class Recipe:
     # kept below the aligned L1's own weight so that a crop whose front cannot be told is still
     # cheaper at one of the two orders than at their mean (see align_to_twin)
     order_weight: float = 0.0
+    # + w x the training-only propeller heatmap loss on the backbone's stride-8/16 maps
+    # (dronekey.heatmap_aux: teaches the CNN where the propellers and the front are)
+    heatmap_weight: float = 0.0
     presence_steps: int = 0  # head-only presence steps on the best network after the epochs, see below
     val_samples: int = 1500
     patience: int = 12
@@ -121,6 +124,7 @@ def _recipes() -> dict[str, Recipe]:
             l1_weight=4.0,
             symmetric_weight=4.0,
             order_weight=2.0,
+            heatmap_weight=1.0,
             presence_steps=300,
         ),
         "paper": Recipe(
@@ -327,6 +331,10 @@ def evaluate(net, data: dict, batch: int = 128) -> dict:
         "ap_kp": 100 * ap,
         "presence_auc": 100 * roc_auc(p, present),
         "median_err_px": float(np.median(err)),
+        # front/back apart: the error against the closer of the labels and their 180-degree twin
+        "median_err_either_order_px": float(
+            np.median(np.minimum(err, np.linalg.norm(kp[present] - gt[:, HEADING_TWIN], axis=2) * S))
+        ),
         "p90_err_px": float(np.percentile(err.mean(axis=1), 90)),
         "swap_rate": 100 * float(np.mean(swapped_err.mean(1) < err.mean(1))),
         **extra,
@@ -455,11 +463,22 @@ def train(args: argparse.Namespace) -> dict:
             log.info("nothing to resume in %s; starting a new run", out)
         net = DroneKeyNet(DroneKeyConfig.from_dict(recipe.model))
         state = None
+        if args.init_from:
+            _warm_start(net, args.init_from)
     net = net.to(memory_format=torch.channels_last)  # faster convolutions in oneDNN
     use_bf16 = args.precision == "bf16" or (args.precision == "auto" and _cpu_has_bf16())
     log.info("mixed precision: %s", "bfloat16 autocast (fp32 weights)" if use_bf16 else "off (fp32)")
     net.train()
     params = [p for p in net.parameters() if p.requires_grad]
+    aux = None
+    if recipe.heatmap_weight and net.config.backbone == "edge":
+        from dronekey.heatmap_aux import PropellerHeatmaps
+
+        aux = PropellerHeatmaps(net.backbone, net.config.edge_widths, net.config.edge_depths)
+        aux = aux.to(memory_format=torch.channels_last).train()
+        if state is not None and "heatmaps" in state:
+            aux.load_state_dict(state["heatmaps"])
+        params += list(aux.parameters())
     if recipe.optimizer == "adam":
         opt = torch.optim.Adam(params, lr=recipe.lr, weight_decay=recipe.weight_decay)
     else:
@@ -546,6 +565,12 @@ def train(args: argparse.Namespace) -> dict:
             loss = loss_kp + recipe.presence_weight * bce(out_net.presence_logit.float(), present.float())
             if out_net.nose is not None and bool(present.any()):
                 loss = loss + recipe.heading_weight * nose_loss(out_net.nose.float()[present], kp[present])
+            if aux is not None:
+                from dronekey.heatmap_aux import heatmap_loss
+
+                with torch.autocast("cpu", dtype=torch.bfloat16, enabled=use_bf16):
+                    maps = aux()
+                loss = loss + recipe.heatmap_weight * heatmap_loss(maps, kp, present, x.shape[-1])
             opt.zero_grad(set_to_none=True)
             loss.backward()
             torch.nn.utils.clip_grad_norm_(params, 2.0)
@@ -590,13 +615,15 @@ def train(args: argparse.Namespace) -> dict:
                 "best_ap": best_ap,
                 "optimizer": opt.state_dict(),
                 "scheduler": sched.state_dict(),
+                **({"heatmaps": aux.state_dict()} if aux is not None else {}),
             },
             state_path,
         )
         (out / "history.json").write_text(json.dumps(history, indent=1))
         write_plots(history, out)
         log.info(
-            "epoch %d: loss %.4f S %.3f | AP %.2f SR90 %.2f SR95 %.2f AUC %.2f | median %.2f px p90 %.2f px"
+            "epoch %d: loss %.4f S %.3f | AP %.2f SR90 %.2f SR95 %.2f AUC %.2f | median %.2f px"
+            " (either order %.2f px) p90 %.2f px"
             " swap %.2f%% heading wrong %.2f%% (confident %.2f%%) | %.0f crops/s%s",
             epoch + 1,
             entry["train_loss"],
@@ -606,6 +633,7 @@ def train(args: argparse.Namespace) -> dict:
             metrics["sr95"],
             metrics["presence_auc"],
             metrics["median_err_px"],
+            metrics["median_err_either_order_px"],
             metrics["p90_err_px"],
             metrics["swap_rate"],
             metrics.get("heading_wrong", float("nan")),
@@ -644,6 +672,33 @@ def train(args: argparse.Namespace) -> dict:
         last_path,
     )
     return {"best_ap": best_ap, "history": history}
+
+
+class WarmStartError(ValueError):
+    """``--init-from`` names no readable DroneKey checkpoint; the message says which and why."""
+
+
+def _warm_start(net, path: str) -> None:
+    """Copy into ``net`` the weights of checkpoint ``path`` whose names and shapes match."""
+    import torch
+
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+        weights = payload["model"]
+    except FileNotFoundError:
+        raise WarmStartError(f"--init-from: checkpoint not found: {path}") from None
+    except Exception as exc:
+        raise WarmStartError(f"--init-from {path}: not a DroneKey checkpoint ({exc})") from None
+    own = net.state_dict()
+    usable = {k: v for k, v in weights.items() if k in own and own[k].shape == v.shape}
+    net.load_state_dict(usable, strict=False)
+    log.info(
+        "initialised %d of %d tensors from %s (fresh: %s)",
+        len(usable),
+        len(own),
+        path,
+        ", ".join(sorted({k.split(".")[0] for k in set(own) - set(usable)})) or "none",
+    )
 
 
 def fit_presence_head(net, batches, steps: int, lr: float = 3e-3) -> None:
@@ -734,6 +789,13 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--patience", type=int)
     g.add_argument("--presence-steps", type=int, help="head-only presence steps after the epochs (0: none)")
     g.add_argument("--heading-weight", type=float, help="weight of the front/back head's nose loss")
+    p.add_argument(
+        "--init-from",
+        default=None,
+        metavar="CHECKPOINT",
+        help="start a new run from this checkpoint's weights (those whose names and shapes match; "
+        "heads the checkpoint lacks start fresh) instead of a random initialisation",
+    )
     return p
 
 
@@ -761,7 +823,7 @@ def main(argv: list[str] | None = None) -> int:
         )
     try:
         train(args)
-    except CocoDataError as exc:
+    except (CocoDataError, WarmStartError) as exc:
         print(f"dronekey-train: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

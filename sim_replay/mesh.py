@@ -104,16 +104,18 @@ class BodyShape:
     @classmethod
     def random(cls, rng: np.random.Generator, leds: bool = True) -> BodyShape:
         """A consumer-to-prosumer quadcopter; ``leds`` False gives a shape with no LED parts."""
-        gimbal = str(rng.choice(GIMBAL_PLACES, p=[0.7, 0.15, 0.15]))
+        # Camera drones, the kind a counter-drone sensor meets, carry their camera at the front: it is
+        # the one front cue real drones share, so most shapes have one (the rest must stay doubtful).
+        gimbal = str(rng.choice(GIMBAL_PLACES, p=[0.85, 0.1, 0.05]))
         return cls(
             length=float(rng.uniform(0.45, 0.8)),
             width=float(rng.uniform(0.2, 0.38)),
             height=float(rng.uniform(0.14, 0.3)),
             nose_taper=float(rng.uniform(0.55, 1.0)) if rng.random() < 0.6 else 1.0,
-            nose_length=float(rng.uniform(0.03, 0.12)) if rng.random() < 0.35 else 0.0,
-            battery=float(rng.uniform(0.2, 0.4)) if rng.random() < 0.45 else 0.0,
+            nose_length=float(rng.uniform(0.03, 0.12)) if rng.random() < 0.5 else 0.0,
+            battery=float(rng.uniform(0.2, 0.4)) if rng.random() < 0.55 else 0.0,
             gimbal=gimbal,
-            gimbal_size=float(rng.uniform(0.8, 1.6)),
+            gimbal_size=float(rng.uniform(1.0, 1.8)),
             arm_scale=float(rng.uniform(0.6, 1.8)),
             rear_arm_drop=float(rng.uniform(0.2, 0.7)) if rng.random() < 0.4 else 0.0,
             guards=bool(rng.random() < 0.15),
@@ -214,7 +216,8 @@ class DroneStyle:
             blade_opacity=float(blade_op),
             blade_angle_deg=float(rng.uniform(0, 360)),
             blade_smear_deg=float(smear),
-            gimbal=tuple(np.full(3, rng.uniform(0.05, 0.8))),
+            # gimbals are mostly black or dark grey, whatever the shell
+            gimbal=tuple(np.full(3, rng.uniform(0.03, 0.25) if rng.random() < 0.75 else rng.uniform(0.05, 0.8))),
             gloss=float(rng.choice([0.0, rng.uniform(0.2, 1.0), rng.uniform(1.5, 4.0)], p=[0.3, 0.45, 0.25])),
             camo=camo,
             front_led=front,
