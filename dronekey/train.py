@@ -147,6 +147,7 @@ def _recipes() -> dict[str, Recipe]:
             lr=2e-3,
             val_samples=64,
             warmup_steps=2,
+            heatmap_weight=1.0,  # so the tests exercise the auxiliary heads and their resume
         ),
     }
 

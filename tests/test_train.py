@@ -98,3 +98,32 @@ def test_presence_head_refit_changes_only_the_head_and_switches_its_input():
     after = net.state_dict()
     changed = sorted(k for k in before if not torch.equal(before[k], after[k]))
     assert changed == ["presence.bias", "presence.weight"]
+
+
+def test_init_from_copies_matching_weights_and_names_a_bad_file(tmp_path, capsys, caplog):
+    first = tmp_path / "first"
+    args = ["--preset", "tiny", "--workers", "0", "--threads", "1", "--epochs", "1", "--presence-steps", "0"]
+    assert main([*args, "--out", str(first)]) == 0
+    with caplog.at_level("INFO", logger="dronekey.train"):
+        assert main([*args, "--out", str(tmp_path / "second"), "--init-from", str(first / "last.pt")]) == 0
+    (line,) = [r.getMessage() for r in caplog.records if r.getMessage().startswith("initialised")]
+    assert "fresh: none" in line
+    assert main([*args, "--out", str(tmp_path / "third"), "--init-from", str(tmp_path / "missing.pt")]) == 2
+    assert "--init-from: checkpoint not found" in capsys.readouterr().err
+
+
+def test_heatmap_targets_mark_every_and_front_propellers():
+    import torch
+
+    from dronekey.heatmap_aux import propeller_targets
+
+    hi, lo = 11.5 / 16, 3.5 / 16  # centres of cells 11 and 3 of a 16 x 16 map
+    kp = torch.tensor([[[hi, lo], [hi, hi], [lo, hi], [lo, lo]]])  # FR RR RL FL
+    both = torch.cat([kp, kp])
+    maps = propeller_targets(both, torch.tensor([True, False]), grid=16, input_size=128)
+    assert maps.shape == (2, 2, 16, 16)
+    every, front = maps[0]
+    # FR peaks in cell (row 3, col 11) of both maps; the rear propellers are not "front"
+    assert every[3, 11] > 0.99 and front[3, 11] > 0.99
+    assert every[11, 11] > 0.99 and front[11, 11] < 1e-3
+    assert maps[1].abs().max() == 0  # a drone-free crop has no propellers
