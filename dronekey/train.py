@@ -101,6 +101,9 @@ class Recipe:
     # + w x the training-only propeller heatmap loss on the backbone's stride-8/16 maps
     # (dronekey.heatmap_aux: teaches the CNN where the propellers and the front are)
     heatmap_weight: float = 0.0
+    # BatchNorm layers kept in eval mode (fixed affine): set when a run starts from an exported
+    # model, whose BatchNorm the exporter folded into the convolutions (dronekey.onnx_weights)
+    frozen_batchnorm: bool = False
     presence_steps: int = 0  # head-only presence steps on the best network after the epochs, see below
     val_samples: int = 1500
     patience: int = 12
@@ -464,12 +467,12 @@ def train(args: argparse.Namespace) -> dict:
             log.info("nothing to resume in %s; starting a new run", out)
         net = DroneKeyNet(DroneKeyConfig.from_dict(recipe.model))
         state = None
-        if args.init_from:
-            _warm_start(net, args.init_from)
+        if args.init_from and _warm_start(net, args.init_from):
+            recipe = replace(recipe, frozen_batchnorm=True)
     net = net.to(memory_format=torch.channels_last)  # faster convolutions in oneDNN
     use_bf16 = args.precision == "bf16" or (args.precision == "auto" and _cpu_has_bf16())
     log.info("mixed precision: %s", "bfloat16 autocast (fp32 weights)" if use_bf16 else "off (fp32)")
-    net.train()
+    train_mode(net, recipe)
     params = [p for p in net.parameters() if p.requires_grad]
     aux = None
     if recipe.heatmap_weight and net.config.backbone == "edge":
@@ -531,7 +534,7 @@ def train(args: argparse.Namespace) -> dict:
         stale = history[-1]["epoch"] - best_epoch
     t_start = time.time()
     for epoch in range(start_epoch, recipe.epochs):
-        net.train()
+        train_mode(net, recipe)
         losses, t0 = [], time.time()
         bar = tqdm(
             range(steps_per_epoch),
@@ -676,13 +679,33 @@ def train(args: argparse.Namespace) -> dict:
 
 
 class WarmStartError(ValueError):
-    """``--init-from`` names no readable DroneKey checkpoint; the message says which and why."""
+    """``--init-from`` names no readable DroneKey checkpoint or model; the message says which and why."""
 
 
-def _warm_start(net, path: str) -> None:
-    """Copy into ``net`` the weights of checkpoint ``path`` whose names and shapes match."""
+def train_mode(net, recipe: Recipe) -> None:
+    """``net.train()``, with the BatchNorm layers left in eval mode under ``recipe.frozen_batchnorm``."""
+    net.train()
+    if recipe.frozen_batchnorm:
+        from dronekey.onnx_weights import frozen_batchnorm
+
+        frozen_batchnorm(net)
+
+
+def _warm_start(net, path: str) -> bool:
+    """Copy into ``net`` the weights of checkpoint or exported model ``path`` whose names and shapes
+    match. Returns True when they came from an ONNX export (its BatchNorm folded: keep it frozen)."""
     import torch
 
+    if str(path).endswith(".onnx"):
+        from dronekey.onnx_weights import OnnxWeightsError, weights_from_onnx
+
+        try:
+            weights = weights_from_onnx(path, net)
+        except OnnxWeightsError as exc:
+            raise WarmStartError(f"--init-from: {exc}") from None
+        net.load_state_dict(weights, strict=False)
+        log.info("initialised from the exported model %s; BatchNorm frozen (folded in the export)", path)
+        return True
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
         weights = payload["model"]
@@ -700,6 +723,7 @@ def _warm_start(net, path: str) -> None:
         path,
         ", ".join(sorted({k.split(".")[0] for k in set(own) - set(usable)})) or "none",
     )
+    return False
 
 
 def fit_presence_head(net, batches, steps: int, lr: float = 3e-3) -> None:
@@ -794,8 +818,9 @@ def build_parser() -> argparse.ArgumentParser:
         "--init-from",
         default=None,
         metavar="CHECKPOINT",
-        help="start a new run from this checkpoint's weights (those whose names and shapes match; "
-        "heads the checkpoint lacks start fresh) instead of a random initialisation",
+        help="start a new run from the weights of this checkpoint (.pt) or exported model (.onnx, e.g. "
+        "the shipped one; its BatchNorm then stays frozen), those whose names and shapes match; heads "
+        "it lacks start fresh",
     )
     return p
 
