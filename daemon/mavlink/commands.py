@@ -14,7 +14,8 @@ Handled (as COMMAND_LONG or COMMAND_INT, each answered with COMMAND_ACK before a
 A command is ours when its target system is ours or 0 (broadcast) and its target component is
 ours or 0; anything else, and anything we sent ourselves, is ignored. A PING with target 0/0 is a
 request and is answered to its sender; a PING with a target is a reply to someone and is ignored.
-Signature checks happen before this (in the parser), so what reaches here has passed them.
+What reaches here has passed the sink's checks: sent by an admitted peer (``peers``), and with
+signing on, correctly signed and not a replay (``verify``).
 """
 
 from __future__ import annotations

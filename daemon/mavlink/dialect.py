@@ -135,6 +135,10 @@ def _import(path: Path, name: str) -> ModuleType:
         raise DialectError(f"cannot import the generated dialect {path}: {exc!r}") from exc
     if getattr(module, "WIRE_PROTOCOL_VERSION", None) != "2.0":
         raise DialectError(f"{path} is not a MAVLink 2 module")
+    # The generated parser logs "new stream", "sig mismatch", "old timestamp" at INFO for every such
+    # packet it sees: input anyone can send, so a flood of forged packets became a flood of log
+    # lines. The sink counts refusals and reports them at a bounded rate instead (``refusals``).
+    logging.getLogger(module.__name__).setLevel(logging.WARNING)
     sys.modules[name] = module
     return module
 

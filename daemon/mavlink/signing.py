@@ -26,6 +26,7 @@ __all__ = [
     "default_state_dir",
     "now_signing_timestamp",
     "read_signing_key",
+    "write_atomically",
 ]
 
 log = logging.getLogger(__name__)
@@ -121,16 +122,7 @@ class SigningTimestampStore:
     def save(self, timestamp: int) -> bool:
         """Write ``timestamp`` atomically (temporary file, fsync, rename); False if it failed."""
         try:
-            fd, tmp = tempfile.mkstemp(prefix=".signing-", dir=self.path.parent)
-            try:
-                with os.fdopen(fd, "w") as f:
-                    f.write(f"{int(timestamp)}\n")
-                    f.flush()
-                    os.fsync(f.fileno())
-                os.replace(tmp, self.path)
-            except BaseException:
-                Path(tmp).unlink(missing_ok=True)
-                raise
+            write_atomically(self.path, f"{int(timestamp)}\n")
         except OSError as exc:
             if not self._warned:
                 log.warning(
@@ -142,6 +134,23 @@ class SigningTimestampStore:
                 self._warned = True
             return False
         return True
+
+
+def write_atomically(path: Path, text: str) -> None:
+    """Replace ``path`` with ``text`` so a crash leaves the old or the new file, never half of one.
+
+    Temporary file in the same folder, fsync, rename. Raises OSError.
+    """
+    fd, tmp = tempfile.mkstemp(prefix=".signing-", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
 
 
 def default_state_dir(key_file: str | os.PathLike) -> Path:

@@ -8,6 +8,11 @@ What goes out, all MAVLink 2 from our own system/component ids:
   is configured;
 - replies to PING, MAV_CMD_REQUEST_MESSAGE and MAV_CMD_SET_MESSAGE_INTERVAL (``commands`` module).
 
+What comes in is read only from admitted peers (``peers``: the link's own peer, the first one heard,
+or ``allow``), one UDP datagram at a time (``framing``), and with signing on only when correctly
+signed and newer than its stream's last message, which survives restarts (``verify``). Everything
+refused is counted by reason and logged at a bounded rate (``refusals``).
+
 Threads: the daemon's ``SinkWorker`` calls ``handle_update``; a housekeeping thread sends the
 heartbeat, (re)opens the link with backoff and saves the signing timestamp; a receive thread parses
 what ground stations send and answers. One lock serialises the pymavlink encoder/parser, whose
@@ -23,6 +28,7 @@ import contextlib
 import importlib.metadata
 import logging
 import os
+import socket
 import threading
 import time
 from collections.abc import Iterable
@@ -37,7 +43,17 @@ from dronekey.types import Track, TrackStatus
 from . import messages
 from .commands import CommandHandler
 from .dialect import load_dialect
-from .link import open_link, validate_url
+from .framing import parse_datagram
+from .link import (
+    is_datagram,
+    local_address,
+    open_link,
+    read_datagram,
+    send_datagram_to,
+    validate_url,
+)
+from .peers import PeerPolicy
+from .refusals import Refusals
 from .signing import (
     SAVE_INTERVAL_S,
     SigningTimestampStore,
@@ -53,6 +69,7 @@ from .target_state import (
     validate_icao_base,
     validate_statuses,
 )
+from .verify import DEFAULT_MAX_STREAMS, SignatureCheck, StreamTimestamps
 
 __all__ = ["DEFAULT_COMPID", "DEFAULT_SYSID", "DEFAULT_URL", "MavlinkSink"]
 
@@ -66,7 +83,7 @@ _TICK_S = 0.1
 _RECV_POLL_S = 0.2
 _RETRY_MIN_S, _RETRY_MAX_S = 1.0, 30.0
 _TRACK_STALE_S = 5.0
-_REFUSAL_LOG_PERIOD_S = 60.0
+_MAX_UDP_CLIENTS = 16  # a listening link sends to at most this many admitted peers, last heard kept
 _MSG_TARGET_ABSOLUTE, _MSG_TARGET_RELATIVE, _MSG_ADSB_VEHICLE = 510, 511, 246
 _STREAM_NAMES = {510: "TARGET_ABSOLUTE", 511: "TARGET_RELATIVE", 246: "ADSB_VEHICLE"}
 
@@ -98,6 +115,12 @@ class MavlinkSink(Sink):
         came for this long (a stalled or hung pipeline), s.
     heartbeat_period_s : seconds between heartbeats (1 Hz by MAVLink convention).
     dialect_cache_dir : where the generated dialect lives (``dialect.load_dialect``).
+    allow : who else may send commands (``peers``): ``"HOST"``, ``"HOST:PORT"`` or a network
+        ``"10.0.0.0/24"``; empty: only the link's own peer (or, on a listening link, the first heard).
+    max_signed_streams : incoming signed streams whose timestamps are kept (``verify``), oldest
+        evicted first; their state file is ``mavlink-signing-<sysid>-<compid>.streams`` beside the
+        signing timestamp.
+    refusal_log_period_s : at most one log line about refused input per this many seconds.
 
     Health: the daemon calls ``set_healthy(bool)`` when the pipeline's state changes, or puts
     ``"healthy": bool`` in the status dict it gives ``handle_status``; frame updates also count as
@@ -123,8 +146,20 @@ class MavlinkSink(Sink):
         health_timeout_s: float = 5.0,
         heartbeat_period_s: float = 1.0,
         dialect_cache_dir: str | os.PathLike | None = None,
+        allow: Iterable[str] = (),
+        max_signed_streams: int = DEFAULT_MAX_STREAMS,
+        refusal_log_period_s: float = 60.0,
     ) -> None:
         self._url = validate_url(url)
+        scheme = self._url.partition(":")[0]
+        if isinstance(allow, str):
+            raise TypeError(f"allow must be a list of HOST or HOST:PORT strings, got the string {allow!r}")
+        # Links that name no peer pin the first one heard; tcpin by host, as a reconnecting client
+        # comes from a new port.
+        self._peers = PeerPolicy(
+            allow, pin_first=scheme in ("udpin", "udp", "udpbcast", "tcpin"), pin_port=scheme != "tcpin"
+        )
+        self._refusals = Refusals(refusal_log_period_s)
         if not isinstance(sysid, int) or not 1 <= sysid <= 254:
             raise ValueError(f"sysid must be an integer in 1..254, got {sysid!r}")
         if not isinstance(compid, int) or not 1 <= compid <= 255:
@@ -145,6 +180,7 @@ class MavlinkSink(Sink):
 
         self._key: bytes | None = None
         self._ts_store: SigningTimestampStore | None = None
+        self._streams = StreamTimestamps(None, max_signed_streams)
         if signing_key_file is not None:
             self._key = read_signing_key(signing_key_file)
             state_dir = (
@@ -152,7 +188,13 @@ class MavlinkSink(Sink):
                 if signing_state_dir is not None
                 else default_state_dir(signing_key_file)
             )
-            self._ts_store = SigningTimestampStore(state_dir / f"mavlink-signing-{sysid}-{compid}.timestamp")
+            stem = state_dir / f"mavlink-signing-{sysid}-{compid}"
+            self._ts_store = SigningTimestampStore(stem.with_suffix(".timestamp"))
+            self._streams = StreamTimestamps(stem.with_suffix(".streams"), max_signed_streams)
+        self._check = SignatureCheck(self._streams, self._note_signing_refusal)
+        self._source: str | None = None  # sender of the datagram being parsed (under _io_lock)
+        self._save_streams_soon = False
+        self._local: str | None = None
 
         self._d = load_dialect(dialect_cache_dir)
         self._mav_type = self._d.MAV_TYPE_ONBOARD_CONTROLLER if mav_type is None else int(mav_type)
@@ -179,8 +221,6 @@ class MavlinkSink(Sink):
         self._sent: collections.Counter = collections.Counter()
         self._send_errors = 0
         self._last_send_error: str | None = None
-        self._refused = 0
-        self._last_refusal_log = -_REFUSAL_LOG_PERIOD_S
         self._commands = 0
 
         self._stop = threading.Event()
@@ -251,6 +291,7 @@ class MavlinkSink(Sink):
 
     def health(self) -> dict:
         """Link state and counters for the daemon's status message."""
+        refused = self._refusals.counts()
         with self._state_lock:
             return {
                 "url": self._url,
@@ -261,12 +302,28 @@ class MavlinkSink(Sink):
                 "sent": dict(self._sent),
                 "send_errors": self._send_errors,
                 "last_send_error": self._last_send_error,
-                "refused_unsigned": self._refused,
+                "local": self._local,
+                "commands_from": self._peers.describe(),
+                "refused": sum(refused.values()),
+                "refusals": refused,
+                "refused_unsigned": refused["unsigned"] + refused["bad_signature"] + refused["replay"],
+                "signed_streams": len(self._streams),
                 "commands": self._commands,
                 "intervals_us": {
                     _STREAM_NAMES[m]: self._rates.interval_us(m) for m in self._rates.message_ids
                 },
             }
+
+    def failing(self) -> str | None:
+        """Why nothing goes out right now (the link is not open), or None."""
+        with self._state_lock:
+            if self._conn is None and not self._stop.is_set():
+                return f"link not open: {self._last_link_error or 'opening'}"
+        return None
+
+    def fault_counts(self) -> dict[str, int]:
+        """Input refused since start (every reason of ``refusals.REASONS`` together)."""
+        return {"refused": self._refusals.total()}
 
     def close(self) -> None:
         """Stop the threads, save the signing timestamp, close the link. Idempotent."""
@@ -278,6 +335,8 @@ class MavlinkSink(Sink):
         with self._io_lock:
             self._save_signing_timestamp()
             conn, self._conn = self._conn, None
+        self._streams.save()
+        self._refusals.flush(float("inf"))  # whatever was refused since the last line
         if conn is not None:
             try:
                 conn.close()
@@ -349,7 +408,9 @@ class MavlinkSink(Sink):
 
     # ------------------------------------------------------------------ link and I/O
 
-    def _send(self, msg) -> bool:
+    def _send(self, msg, reply_to: tuple[str, int] | None = None) -> bool:
+        """Send ``msg`` on the link; a reply on a UDP link that sends to one destination goes to
+        ``reply_to`` instead (an allow-listed station that is not the udpout target)."""
         with self._io_lock:
             conn = self._conn
             if conn is None:
@@ -359,12 +420,15 @@ class MavlinkSink(Sink):
                 if self._key is not None:
                     sig = conn.mav.signing
                     sig.timestamp = max(sig.timestamp, now_signing_timestamp())
-                conn.mav.send(msg)
+                if reply_to is not None and is_datagram(conn) and not conn.udp_server:
+                    send_datagram_to(conn, msg, reply_to)
+                else:
+                    conn.mav.send(msg)
                 if self._key is not None:
                     self._last_signing_ts = conn.mav.signing.timestamp
             except Exception as exc:  # pymavlink's writers swallow socket errors; serial ones may not
                 self._count_send_error(f"{type(exc).__name__}: {exc}")
-                if isinstance(exc, OSError):
+                if isinstance(exc, OSError) and reply_to is None:
                     self._drop_link_locked(exc)
                 return False
         with self._state_lock:
@@ -382,6 +446,7 @@ class MavlinkSink(Sink):
             if self._conn is not None or self._stop.is_set() or time.monotonic() < self._next_open_mono:
                 return
             try:
+                self._peers.resolve(_named_peer(self._url))
                 conn = open_link(self._url, self._d, self._sysid, self._compid)
             except Exception as exc:
                 msg = f"{type(exc).__name__}: {exc}"
@@ -398,25 +463,30 @@ class MavlinkSink(Sink):
                 conn.setup_signing(
                     self._key,
                     sign_outgoing=True,
-                    allow_unsigned_callback=self._refuse_unsigned,
+                    allow_unsigned_callback=self._check.refuse,
                     initial_timestamp=start,
                     link_id=1,
                 )
+                self._check.install(conn.mav)
                 self._last_signing_ts = start
             self._conn = conn
+            self._local = local_address(conn)
             self._retry_s = _RETRY_MIN_S
             self._last_link_error = None
         log.info(
-            "MAVLink on %s as system %d component %d (signing %s)",
+            "MAVLink on %s%s as system %d component %d, signing %s; commands only from %s",
             self._url,
+            f" (socket {self._local})" if self._local else "",
             self._sysid,
             self._compid,
             "on" if self._key is not None else "off",
+            self._peers.describe(),
         )
 
     def _drop_link_locked(self, exc: BaseException) -> None:
         """Close a failed link (caller holds ``_io_lock``); the housekeeping thread reopens it."""
         self._save_signing_timestamp()
+        self._streams.save()
         conn, self._conn = self._conn, None
         self._last_link_error = f"{type(exc).__name__}: {exc}"
         log.warning(
@@ -427,19 +497,9 @@ class MavlinkSink(Sink):
             with contextlib.suppress(Exception):
                 conn.close()
 
-    def _refuse_unsigned(self, mav, msg_id: int) -> bool:
-        """pymavlink's allow_unsigned_callback: with signing on, nothing unsigned or badly signed passes."""
-        now = time.monotonic()
-        with self._state_lock:
-            self._refused += 1
-            if now - self._last_refusal_log >= _REFUSAL_LOG_PERIOD_S:
-                self._last_refusal_log = now
-                log.warning(
-                    "MAVLink: refused an unsigned or wrongly signed message (id %d); %d so far",
-                    msg_id,
-                    self._refused,
-                )
-        return False
+    def _note_signing_refusal(self, reason: str) -> None:
+        """``SignatureCheck``'s report (called while parsing, under ``_io_lock``)."""
+        self._refusals.note(reason, self._source)
 
     def _save_signing_timestamp(self) -> None:
         if self._ts_store is not None and self._last_signing_ts:
@@ -455,10 +515,16 @@ class MavlinkSink(Sink):
                 if now >= next_heartbeat and self.is_healthy():
                     self._send(messages.heartbeat(self._d, self._mav_type))
                     next_heartbeat = now + self._heartbeat_period_s
+                # A command's stream timestamp is on disk within a tick, so a capture of it is a
+                # replay after a restart; other signed messages change nothing and wait for the rest.
+                if self._save_streams_soon or now >= next_save:
+                    self._save_streams_soon = False
+                    self._streams.save()
                 if now >= next_save:
                     with self._io_lock:
                         self._save_signing_timestamp()
                     next_save = now + SAVE_INTERVAL_S
+                self._refusals.flush()
             except Exception:  # a bug here must not silently end the heartbeat for good
                 log.exception("MAVLink housekeeping failed; continuing")
                 self._stop.wait(1.0)
@@ -479,10 +545,14 @@ class MavlinkSink(Sink):
         """Wait up to ``_RECV_POLL_S`` for data on ``conn``, parse it and answer what asks for it."""
         from pymavlink import mavutil
 
+        datagram = is_datagram(conn)
         try:
             if not conn.select(_RECV_POLL_S):
                 return
-            data = conn.recv()
+            if datagram:
+                data, peer = read_datagram(conn)
+            else:
+                data, peer = conn.recv(), _stream_peer(conn)
         except Exception as exc:
             if not self._stop.is_set():
                 with self._io_lock:
@@ -495,16 +565,82 @@ class MavlinkSink(Sink):
                     if self._conn is conn:
                         self._drop_link_locked(ConnectionError("peer closed the connection"))
             return
+        source = f"{peer[0]}:{peer[1]}" if peer is not None else None
+        if peer is not None and not self._peers.admits(peer):
+            self._refusals.note("peer", source)
+            if isinstance(conn, mavutil.mavtcpin):
+                self._drop_tcp_client(conn)
+            return
         with self._io_lock:
             if self._conn is not conn:
                 return
-            received = conn.mav.parse_buffer(data) or []
-        for msg in received:
-            if msg.get_type() == "BAD_DATA":
-                continue
+            self._source = source
+            try:
+                if datagram:
+                    received, malformed = parse_datagram(conn.mav, data)
+                else:
+                    received, malformed = conn.mav.parse_buffer(data) or [], False
+            finally:
+                self._source = None
+        if malformed:
+            self._refusals.note("malformed", source)
+        valid = [m for m in received if m.get_type() != "BAD_DATA"]
+        if not valid:
+            return
+        if peer is not None:
+            self._peers.confirm(peer)
+            if datagram:
+                self._remember_client(conn, peer)
+        for msg in valid:
             replies = self._handler.handle(msg)
             if replies:
                 with self._state_lock:
                     self._commands += 1
+                self._save_streams_soon = self._key is not None
             for reply in replies:
-                self._send(reply)
+                self._send(reply, reply_to=peer if datagram else None)
+
+    def _remember_client(self, conn, peer: tuple[str, int]) -> None:
+        """An admitted peer was heard: a listening link sends to it, a broadcast link switches to it."""
+        with self._io_lock:
+            if self._conn is not conn:
+                return
+            if conn.udp_server:
+                conn.clients.add(peer)
+                conn.clients_last_alive[peer] = time.time()
+                while len(conn.clients) > _MAX_UDP_CLIENTS:
+                    oldest = min(conn.clients, key=lambda a: conn.clients_last_alive.get(a, 0.0))
+                    conn.clients.discard(oldest)
+                    conn.clients_last_alive.pop(oldest, None)
+            elif conn.broadcast:
+                conn.last_address = peer
+
+    def _drop_tcp_client(self, conn) -> None:
+        """Hang up on a tcpin client that is not admitted; the link keeps listening."""
+        with self._io_lock:
+            if self._conn is conn and conn.port is not None:
+                with contextlib.suppress(OSError):
+                    conn.port.close()
+                conn.port = None
+                conn.fd = conn.listen.fileno()
+
+
+def _named_peer(url: str) -> tuple[str, int] | None:
+    """The peer a URL names (udpout and tcp targets), resolved; None for listening and serial links."""
+    scheme, _, rest = url.partition(":")
+    if scheme not in ("udpout", "tcp"):
+        return None
+    host, _, port = rest.rpartition(":")
+    return socket.gethostbyname(host), int(port)
+
+
+def _stream_peer(conn) -> tuple[str, int] | None:
+    """The client of a tcpin link (checked against the peers); None for tcp and serial links."""
+    from pymavlink import mavutil
+
+    if isinstance(conn, mavutil.mavtcpin) and conn.port is not None:
+        try:
+            return conn.port.getpeername()[:2]
+        except OSError:
+            return None
+    return None
