@@ -191,6 +191,8 @@ def test_client_mode_without_router_neither_raises_nor_hangs():
     assert health["state"] == "connecting" and health["mode"] == "client"
     assert health["not_sent"] == 15 and health["published"] == 0
     wait_for(lambda: sink.health()["error"], 10, "the first failed attempt to be reported")
+    assert sink.failing().startswith("session connecting: ")  # the status line and totals say so
+    assert sink.fault_counts() == {"unsent": 15}
     started = time.monotonic()
     sink.close()
     closed_s = time.monotonic() - started
