@@ -1,5 +1,6 @@
 """Test media for the daemon tests: short clips encoded with PyAV (a test-only dependency), damaged
-MJPEG files and an MPEG-TS server over TCP run as a separate process.
+MJPEG and MPEG-TS files, variable-frame-rate clips and an MPEG-TS server over TCP run as a separate
+process.
 
 Run ``python tests/daemon_media.py serve PORT`` to serve an endless 320x240 H.264 MPEG-TS stream to
 each client that connects to 127.0.0.1:PORT (one at a time), paced at 30 fps.
@@ -12,6 +13,7 @@ import socket
 import subprocess
 import sys
 import time
+from fractions import Fraction
 from pathlib import Path
 
 import av
@@ -29,14 +31,36 @@ def pattern_frame(i: int, width: int = W, height: int = H) -> np.ndarray:
     return img
 
 
-def encode_clip(path: Path, codec: str = "libx264", frames: int = 30, fps: int = FPS) -> Path:
-    """Write ``frames`` test-pattern frames with ``codec`` (libx264, mjpeg, mpeg4) to ``path``."""
-    with av.open(str(path), "w") as container:
-        stream = container.add_stream(codec, rate=fps)
+def encode_clip(
+    path: Path,
+    codec: str = "libx264",
+    frames: int = 30,
+    fps: int = FPS,
+    *,
+    options: dict[str, str] | None = None,
+    container_options: dict[str, str] | None = None,
+    intervals_ms: tuple[int, ...] | None = None,
+) -> Path:
+    """Write ``frames`` test-pattern frames with ``codec`` (libx264, mjpeg, mpeg4) to ``path``.
+
+    The container follows the suffix (``.mp4``, ``.avi``, ``.ts``); ``options`` go to the encoder
+    (``{"g": "10"}``: a keyframe every 10 frames), ``container_options`` to the muxer
+    (``{"movflags": "faststart"}``: the MP4 index first); ``intervals_ms`` (cycled) gives a
+    variable frame rate.
+    """
+    with av.open(str(path), "w", options=container_options or {}) as container:
+        stream = container.add_stream(codec, rate=fps, options=options or {})
         stream.width, stream.height = W, H
         stream.pix_fmt = "yuvj420p" if codec == "mjpeg" else "yuv420p"
+        if intervals_ms:
+            stream.codec_context.time_base = Fraction(1, 1000)
+        t_ms = 0
         for i in range(frames):
-            for packet in stream.encode(av.VideoFrame.from_ndarray(pattern_frame(i), format="bgr24")):
+            frame = av.VideoFrame.from_ndarray(pattern_frame(i), format="bgr24")
+            if intervals_ms:
+                frame.pts, frame.time_base = t_ms, Fraction(1, 1000)
+                t_ms += intervals_ms[i % len(intervals_ms)]
+            for packet in stream.encode(frame):
                 container.mux(packet)
         for packet in stream.encode():
             container.mux(packet)
@@ -50,6 +74,16 @@ def damage_mjpeg_frames(src: Path, dst: Path, frame_numbers: list[int]) -> Path:
     for n in frame_numbers:
         s = starts[n]
         data[s + 2 : s + 602] = bytes(600)
+    dst.write_bytes(bytes(data))
+    return dst
+
+
+def damage_ts_packets(src: Path, dst: Path, first: int, count: int) -> Path:
+    """Copy an MPEG-TS file, zeroing the payload of ``count`` 188-byte packets from packet ``first``
+    (as a lossy link does): FFmpeg drops the frames they carried without a decode error."""
+    data = bytearray(src.read_bytes())
+    for k in range(first, first + count):
+        data[188 * k + 4 : 188 * (k + 1)] = bytes(184)
     dst.write_bytes(bytes(data))
     return dst
 
@@ -149,6 +183,17 @@ def write_untrained_model(path: Path, input_size: int = 64) -> Path:
     onnx.checker.check_model(model)
     onnx.save(model, str(path))
     return path
+
+
+def daemon_assets(folder: Path, width: int = 640, height: int = 480) -> Path:
+    """What a daemon run in a test needs, in ``folder``: a 30-frame H.264 ``clip.mp4``, a matching
+    ``camera.yaml`` (60 deg horizontal field of view) and an ``untrained.onnx`` model."""
+    from dronekey.camera import CameraModel
+
+    encode_clip(folder / "clip.mp4", "libx264", frames=30)
+    CameraModel.from_fov(width, height, 60).save_yaml(folder / "camera.yaml")
+    write_untrained_model(folder / "untrained.onnx")
+    return folder
 
 
 def free_port() -> int:

@@ -1,9 +1,11 @@
 """Frame sources on the capture thread, with real decoding: H.264 / MPEG-4 / MJPEG files with their
-presentation timestamps, corrupt frames skipped and counted, image folders, looping, realtime
-pacing, back-pressure for files, drop-oldest for live queues, sidecar calibrations."""
+presentation timestamps, corrupt frames skipped and counted (MJPEG, and frames lost in a damaged
+MPEG-TS), truncated files called truncated, image folders (odd-sized images skipped), looping,
+realtime pacing, back-pressure for files, drop-oldest for live queues, sidecar calibrations."""
 
 from __future__ import annotations
 
+import logging
 import threading
 import time
 from pathlib import Path
@@ -11,12 +13,20 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from daemon_media import FPS, damage_mjpeg_frames, encode_clip, pattern_frame
+from daemon_media import FPS, damage_mjpeg_frames, damage_ts_packets, encode_clip, pattern_frame
 
 from dronekey.camera import CameraModel
 from dronekey.daemon.config import SourceConfig
 from dronekey.daemon.errors import UsageError
-from dronekey.daemon.sources import Capture, CapturedFrame, FrameQueue, SourceState, make_reader
+from dronekey.daemon.sources import (
+    Capture,
+    CapturedFrame,
+    CaptureStats,
+    FrameQueue,
+    SourceOpenError,
+    SourceState,
+    make_reader,
+)
 from dronekey.daemon.sources.image_folder import ImageFolderReader
 from dronekey.daemon.sources.opencv_readers import (
     NetworkStreamReader,
@@ -25,6 +35,7 @@ from dronekey.daemon.sources.opencv_readers import (
     redact_url,
 )
 from dronekey.daemon.sources.sim import SimReader
+from dronekey.daemon.sources.truncation import truncation
 from dronekey.types import Frame
 
 
@@ -48,6 +59,8 @@ def media(tmp_path_factory) -> Path:
     encode_clip(folder / "h264.mp4", "libx264", frames=30)
     encode_clip(folder / "mpeg4.mp4", "mpeg4", frames=30)
     encode_clip(folder / "mjpeg.avi", "mjpeg", frames=30)
+    encode_clip(folder / "h264.ts", "libx264", frames=60, options={"g": "10"})
+    encode_clip(folder / "faststart.mp4", "libx264", frames=60, container_options={"movflags": "faststart"})
     return folder
 
 
@@ -80,6 +93,63 @@ def test_corrupt_frames_in_a_file_are_counted_and_skipped(media, tmp_path):
     after = next(f for f in frames if f.frame.index == 13)
     assert after.frame.t_ns == pytest.approx(13e9 / FPS, abs=1e6)
     assert np.abs(after.frame.bgr.astype(int) - pattern_frame(13)).mean() < 12
+
+
+def test_frames_lost_in_a_corrupt_mpeg_ts_are_counted(media, tmp_path):
+    intact = drain_file(media / "h264.ts")
+    assert [f.index for f in intact[0]] == list(range(60)) and intact[1].corrupt == 0
+    packets = (media / "h264.ts").stat().st_size // 188
+    # At the start (the first keyframe), and mid-way (B-frames: some come out late, after the hole).
+    for first in (5, packets // 3, packets // 2):
+        damaged = damage_ts_packets(media / "h264.ts", tmp_path / "damaged.ts", first, 30)
+        frames, stats = drain_file(damaged)
+        assert 0 < stats.frames < 60 and stats.frames + stats.corrupt == 60, stats  # all accounted for
+        assert frames[-1].index == 59
+        for f in frames:  # in order, and indices stay frame numbers across the hole
+            assert f.index == round(f.t_ns * FPS / 1e9)
+        assert truncation(damaged) is None  # damaged, not cut short
+
+
+def test_variable_frame_rate_gaps_are_not_lost_frames(tmp_path):
+    # 20, 20, 60 ms: about 30 fps on average, so each 60 ms step looks like one frame lost.
+    clip = encode_clip(tmp_path / "vfr.mp4", "libx264", frames=30, intervals_ms=(20, 20, 60))
+    frames, stats = drain_file(clip)
+    assert (stats.frames, stats.corrupt) == (30, 0)
+    assert [f.index for f in frames] == list(range(30))
+
+
+def drain_file(path: Path) -> tuple[list[Frame], CaptureStats]:
+    """Every frame of a video file, and the capture's counters at its end."""
+    capture = Capture(VideoFileReader(path), SourceConfig(uri=str(path)))
+    capture.start()
+    frames = [item.frame for item in drain(capture)]
+    return frames, capture.stats()
+
+
+def test_truncated_files_are_called_truncated(media, tmp_path, caplog):
+    for name in ("h264.mp4", "mpeg4.mp4", "mjpeg.avi", "h264.ts", "faststart.mp4"):
+        assert truncation(media / name) is None, name
+
+    def cut(name: str) -> Path:
+        data = (media / name).read_bytes()
+        (tmp_path / name).write_bytes(data[: len(data) // 2])
+        return tmp_path / name
+
+    # The MP4 index (moov) is written last: half a file cannot be opened, and says why.
+    with pytest.raises(
+        SourceOpenError, match=r"h264.mp4: the file is truncated \(its mdat box at byte \d+ needs"
+    ):
+        VideoFileReader(cut("h264.mp4")).open()
+    # With the index first (faststart) or in an AVI, the frames it holds are read, with a warning.
+    for name, whole in (("faststart.mp4", 60), ("mjpeg.avi", 30)):
+        caplog.clear()
+        with caplog.at_level(logging.WARNING, logger="dronekey.daemon.sources.opencv_readers"):
+            frames, _ = drain_file(cut(name))
+        assert 0 < len(frames) < whole
+        assert f"{name} is truncated" in caplog.text and "reading the frames it holds" in caplog.text
+    ts = cut("h264.ts")
+    if ts.stat().st_size % 188:
+        assert "inside an MPEG-TS packet" in truncation(ts)
 
 
 def test_file_back_pressure_never_drops(media):
@@ -120,6 +190,22 @@ def test_image_folder_in_natural_order_with_a_corrupt_image(tmp_path):
     assert [f.frame.t_ns for f in frames] == [0, 100_000_000, 300_000_000]
     assert np.array_equal(frames[2].frame.bgr, pattern_frame(10))
     assert capture.stats().corrupt == 1
+
+
+def test_odd_sized_image_in_a_folder_is_skipped_with_a_warning(tmp_path, caplog):
+    for i in range(5):
+        cv2.imwrite(str(tmp_path / f"frame_{i}.png"), pattern_frame(i))
+    cv2.imwrite(str(tmp_path / "frame_2.png"), pattern_frame(2, width=160, height=120))  # same aspect
+    cv2.imwrite(str(tmp_path / "frame_3.png"), pattern_frame(3, width=200, height=240))  # another one
+    capture = Capture(ImageFolderReader(tmp_path, fps=10.0), SourceConfig(uri=str(tmp_path)))
+    with caplog.at_level(logging.WARNING, logger="dronekey.daemon.sources.image_folder"):
+        capture.start()
+        frames = drain(capture)
+    assert [f.frame.index for f in frames] == [0, 1, 4] and capture.state == SourceState.ENDED
+    assert all(f.frame.bgr.shape == (240, 320, 3) for f in frames)
+    assert capture.stats().corrupt == 2
+    assert "frame_2.png is 160x120, not the folder's 320x240: skipped" in caplog.text
+    assert "frame_3.png is 200x240" in caplog.text
 
 
 def test_unreadable_sources_fail_to_open(tmp_path):

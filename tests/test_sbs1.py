@@ -9,6 +9,7 @@ import time
 import numpy as np
 import pytest
 
+from dronekey.daemon.config import Sbs1Config
 from dronekey.daemon.geo import CameraGeo
 from dronekey.daemon.mavlink.target_state import target_geodetic
 from dronekey.daemon.sinks.base import FrameUpdate
@@ -139,7 +140,7 @@ def test_disconnected_client_is_forgotten(sink):
 def test_refuses_without_camera_geo_or_with_bad_address():
     with pytest.raises(ValueError, match="--camera-geo"):
         Sbs1Sink("127.0.0.1:0", None)
-    for bad in ("30003", "host:", ":30003", "host:99999"):
+    for bad in ("host:", "host:99999", "99999", "::30003", "x"):
         with pytest.raises(ValueError, match="HOST:PORT"):
             parse_listen_address(bad)
     assert parse_listen_address("[::1]:30003") == ("::1", 30003)
@@ -150,6 +151,92 @@ def test_refuses_without_camera_geo_or_with_bad_address():
             Sbs1Sink(f"127.0.0.1:{port}", GEO)
     finally:
         first.close()
+
+
+def test_listen_without_a_host_is_loopback_only():
+    assert parse_listen_address("30003") == parse_listen_address(":30003") == ("127.0.0.1", 30003)
+    assert Sbs1Config(listen="30003").listen == Sbs1Config(listen=30003).listen == "127.0.0.1:30003"
+    assert Sbs1Config(listen=":0").listen == "127.0.0.1:0"
+    assert Sbs1Config(listen="0.0.0.0:30003").listen == "0.0.0.0:30003"  # the network: explicit
+    with pytest.raises(ValueError, match="PORT"):
+        Sbs1Config(listen="host:")
+    for listen in ("0", ":0"):
+        sink = Sbs1Sink(listen, GEO)
+        try:
+            assert sink.address[0] == "127.0.0.1"
+            client = connect(sink)
+            sink.handle_update(update(make_track()))
+            assert read_lines(client, 1)[0].startswith("MSG,1")
+            client.close()
+        finally:
+            sink.close()
+
+
+def publish_for(sink: Sbs1Sink, seconds: float, until=lambda: False, readers=()) -> None:
+    """Publish 20 tracks up to 200 times a second (some 800 kB/s) while ``readers`` read: a client
+    that does not read fills its kernel buffers within a fraction of a second."""
+    tracks = [make_track(track_id=i, p=(i, 0.0, 50.0)) for i in range(20)]
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline and not until():
+        sink.handle_update(update(*tracks))
+        time.sleep(0.005)
+        for reader in readers:
+            try:
+                while reader.recv(1 << 20):
+                    pass
+            except BlockingIOError:
+                pass
+
+
+def test_client_that_reads_nothing_times_out():
+    sink = Sbs1Sink("127.0.0.1:0", GEO, idle_timeout_s=1.0, max_pending_bytes=8 << 20)
+    try:
+        idle = connect(sink, rcvbuf=4096)  # connects and never reads
+        reader = connect(sink)
+        reader.settimeout(0)
+        publish_for(sink, 30.0, until=lambda: sink.health()["clients_dropped_idle"], readers=[reader])
+        health = sink.health()
+        assert health["clients_dropped_idle"] == 1, health
+        assert health["clients_dropped_slow"] == 0  # the time limit, not the size limit (8 MB)
+        idle.settimeout(3.0)
+        with pytest.raises(ConnectionResetError):
+            while idle.recv(1 << 20):
+                pass
+            raise ConnectionResetError  # closed cleanly: also gone
+        publish_for(sink, 0.5, readers=[reader])  # the reader kept up and is still served
+        assert sink.health()["clients"] == 1
+        reader.close()
+    finally:
+        sink.close()
+
+
+def test_full_house_a_newcomer_replaces_a_client_that_reads_nothing():
+    sink = Sbs1Sink("127.0.0.1:0", GEO, max_clients=2, idle_timeout_s=60.0, max_pending_bytes=8 << 20)
+    try:
+        squatters = [connect(sink, rcvbuf=4096) for _ in range(2)]
+        early = socket.create_connection(sink.address[:2])  # no data yet: readers and squatters look alike
+        deadline = time.monotonic() + 3
+        while not sink.health()["clients_refused"] and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert sink.health()["clients_refused"] == 1
+        # the squatters' buffers fill (however slowly a loaded machine sends), then they accept
+        # nothing for more than the 1 s after which a newcomer may take a stalled client's slot
+        publish_for(sink, 30.0, until=lambda: sink.health()["clients_stalled"] == 2)
+        assert sink.health()["clients_stalled"] == 2
+        publish_for(sink, 1.5)
+        newcomer = connect(sink)
+        newcomer.settimeout(0)
+        publish_for(sink, 0.5, readers=[newcomer])
+        health = sink.health()
+        assert health["clients_refused"] == 1 and health["clients_dropped_idle"] == 1, health
+        assert health["clients"] == 2 and health["clients_total"] == 3
+        newcomer.settimeout(3.0)
+        sink.handle_update(update(make_track()))
+        assert b"MSG,3" in newcomer.recv(1 << 20)
+        for s in (*squatters, early, newcomer):
+            s.close()
+    finally:
+        sink.close()
 
 
 def test_line_format_without_course():
