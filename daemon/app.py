@@ -25,7 +25,7 @@ from dronekey.camera import CameraModel
 from dronekey.daemon.calibration import camera_at_resolution, resolve_calibration
 from dronekey.daemon.config import DaemonConfig
 from dronekey.daemon.errors import ExitCode, UsageError
-from dronekey.daemon.messages import status_message
+from dronekey.daemon.messages import sink_entry, status_message
 from dronekey.daemon.outputs import OutputContext, build_outputs, close_outputs
 from dronekey.daemon.signals import SignalMonitor
 from dronekey.daemon.sinks.base import FrameUpdate, SinkWorker
@@ -35,6 +35,7 @@ from dronekey.daemon.status import (
     RateMeter,
     TerminalStatusLine,
     format_track,
+    sink_faults,
     status_figures,
     status_summary,
 )
@@ -397,5 +398,9 @@ class DaemonApp:
         for name, worker in self._workers.items():
             p50, p99 = worker.stats.latency_percentiles()
             lat = f", p50 {p50:.1f} / p99 {p99:.1f} ms" if math.isfinite(p99) else ""
-            parts.append(f"{name} {worker.stats.published} published {worker.stats.dropped} dropped{lat}")
+            faults = sink_faults(sink_entry(name, worker), reason_chars=200)  # what did not get through
+            faults = f", {faults}" if faults else ""
+            parts.append(
+                f"{name} {worker.stats.published} published {worker.stats.dropped} dropped{lat}{faults}"
+            )
         log.info("totals: %s", "; ".join(parts))

@@ -31,9 +31,9 @@ calibration: --calib FILE, else the sequence JSON (same stem) or camera.yaml bes
   else the sim preset's camera; otherwise the daemon stops and says how to make one (dronekey-calib).
   Intrinsics are scaled to the source's resolution (same aspect ratio only).
 
-defaults: Zenoh peer mode with multicast scouting; MAVLink 2 to udpout:127.0.0.1:14550 as
-  system 42 component 191, unsigned; MCAP into $STATE_DIRECTORY/mcap under systemd, else ./mcap;
-  no SBS-1. `--print-config` shows every setting.
+defaults: Zenoh peer mode listening on 127.0.0.1 only, no scouting; MAVLink 2 to
+  udpout:127.0.0.1:14550 as system 42 component 191, unsigned; MCAP into $STATE_DIRECTORY/mcap
+  under systemd, else ./mcap; no SBS-1. `--print-config` shows every setting.
 
 {EXIT_CODE_HELP}
 
@@ -83,8 +83,15 @@ def build_parser() -> argparse.ArgumentParser:
         "--zenoh-connect", metavar="EP", action="append", help="endpoint to connect to (repeatable)"
     )
     g.add_argument("--zenoh-listen", metavar="EP", action="append", help="endpoint to listen on (repeatable)")
-    g.add_argument(
-        "--no-zenoh-scouting", action="store_const", const=True, help="turn multicast scouting off"
+    scouting = g.add_mutually_exclusive_group()
+    scouting.add_argument(
+        "--zenoh-scouting",
+        action="store_const",
+        const=True,
+        help="multicast and gossip scouting on: discoverable on the network (default off)",
+    )
+    scouting.add_argument(
+        "--no-zenoh-scouting", action="store_const", const=True, help="scouting off (the default)"
     )
     g.add_argument("--no-zenoh", action="store_const", const=True, help="no Zenoh output")
     g = p.add_argument_group("MAVLink and SBS-1")
@@ -98,7 +105,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     g.add_argument("--no-mavlink", action="store_const", const=True, help="no MAVLink output")
     g.add_argument(
-        "--sbs1-listen", metavar="HOST:PORT", help="serve SBS-1 (BaseStation) lines; needs --camera-geo"
+        "--sbs1-listen",
+        metavar="[HOST:]PORT",
+        help="serve SBS-1 (BaseStation) lines on 127.0.0.1:PORT, or on HOST; needs --camera-geo",
     )
     g = p.add_argument_group("MCAP log")
     mcap = g.add_mutually_exclusive_group()
@@ -132,6 +141,7 @@ _FLAG_KEYS: dict[str, tuple[str, Any]] = {
     "zenoh_mode": ("zenoh.mode", None),
     "zenoh_connect": ("zenoh.connect", None),
     "zenoh_listen": ("zenoh.listen", None),
+    "zenoh_scouting": ("zenoh.scouting", None),
     "no_zenoh_scouting": ("zenoh.scouting", lambda v: not v),
     "no_zenoh": ("zenoh.enabled", lambda v: not v),
     "mavlink": ("mavlink.url", None),

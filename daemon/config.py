@@ -5,6 +5,11 @@ problem is reported as one line naming the dotted key, the bad value and what is
 
     config error: zenoh.mode = 'router' (from --zenoh-mode): input should be 'peer' or 'client'
 
+The file is read so that it cannot exhaust the machine: at most ``MAX_CONFIG_BYTES``, no YAML
+anchors or aliases (a 1 KB "billion laughs" file expands to gigabytes), nesting at most
+``_MAX_DEPTH`` deep, no duplicate keys (YAML keeps the last one silently), and values are cut to a
+few dozen characters before an error message is built from them.
+
 ``load_config`` is the only entry point the CLI needs; ``DaemonConfig`` documents every key (see
 also ``daemon/config.example.yaml`` and ``docs/daemon.md``).
 """
@@ -13,6 +18,7 @@ from __future__ import annotations
 
 import os
 import re
+import reprlib
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -23,6 +29,7 @@ from pydantic import (
     Field,
     FilePath,
     ValidationError,
+    ValidationInfo,
     field_validator,
 )
 
@@ -34,6 +41,10 @@ __all__ = ["ConfigError", "DaemonConfig", "config_to_yaml", "format_validation_e
 _CAMERA_ID = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
 _ZENOH_ENDPOINT = re.compile(r"^[a-z0-9]+/\S+$")
 _HOST_PORT = re.compile(r"^(?P<host>\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]*):(?P<port>\d{1,5})$")
+
+MAX_CONFIG_BYTES = 1_000_000  # a complete config is about 3 KB; a file this big is not a config
+_MAX_DEPTH = 16  # nesting of YAML collections; the deepest key (source.v4l2.width) is 3 levels down
+_MAX_ERROR_LINES = 20  # problems listed; the rest are counted
 
 
 class ConfigError(UsageError):
@@ -170,21 +181,66 @@ class ModelConfig(_Section):
         return v
 
 
+class ZenohTlsConfig(_Section):
+    """This sensor's TLS identity for ``tls/`` endpoints, with mutual authentication (docs/security.md)."""
+
+    root_ca: FilePath = Field(description="PEM certificate of the fleet CA, which signed the other end")
+    certificate: FilePath = Field(description="PEM certificate from that CA; its common name is our identity")
+    private_key: FilePath = Field(description="PEM private key of the certificate (daemon-only readable)")
+    verify_name_on_connect: bool = Field(True, description="the router's certificate must name its host")
+
+    @field_validator("root_ca", "certificate")
+    @classmethod
+    def _pem_certificate(cls, v: Path) -> Path:
+        return _pem_file(v, "-----BEGIN CERTIFICATE-----", "a PEM certificate")
+
+    @field_validator("private_key")
+    @classmethod
+    def _pem_key(cls, v: Path) -> Path:
+        return _pem_file(v, "PRIVATE KEY-----", "a PEM private key")
+
+
+def _pem_file(path: Path, marker: str, what: str) -> Path:
+    try:
+        with open(path, "rb") as f:
+            head = f.read(65536)
+    except OSError as exc:
+        raise ValueError(f"cannot read it: {exc.strerror}") from None
+    if marker.encode() not in head:
+        raise ValueError(f"must be {what} (no {marker!r} in its first 64 KiB)")
+    return path
+
+
 class ZenohConfig(_Section):
-    """Zenoh session (DESIGN.md §6.1)."""
+    """Zenoh session (DESIGN.md §6.1); on its defaults reachable from this machine only."""
 
     enabled: bool = True
     mode: Literal["peer", "client"] = "peer"
-    connect: list[str] = Field(default_factory=list, description="endpoints, e.g. tcp/192.168.1.10:7447")
-    listen: list[str] = Field(default_factory=list, description="endpoints, e.g. tcp/0.0.0.0:7447")
-    scouting: bool = Field(True, description="multicast scouting for peers and routers")
+    connect: list[str] = Field(default_factory=list, description="endpoints, e.g. tls/192.168.1.10:7447")
+    listen: list[str] = Field(
+        None,  # resolved by _default_listen
+        validate_default=True,
+        description="endpoints; null: tcp/127.0.0.1:0 for a peer (this machine only), none for a client; "
+        "e.g. tcp/0.0.0.0:7447 opens the session to the network",
+    )
+    scouting: bool = Field(
+        False, description="multicast and gossip scouting: makes the session discoverable on the network"
+    )
+    tls: ZenohTlsConfig | None = Field(None, description="TLS identity (mutual authentication); null: none")
+
+    @field_validator("listen", mode="before")
+    @classmethod
+    def _default_listen(cls, v: Any, info: ValidationInfo) -> Any:
+        if v is None:
+            return ["tcp/127.0.0.1:0"] if info.data.get("mode", "peer") == "peer" else []
+        return v
 
     @field_validator("connect", "listen")
     @classmethod
     def _endpoints(cls, v: list[str]) -> list[str]:
         for ep in v:
             if not _ZENOH_ENDPOINT.match(ep):
-                raise ValueError(f"endpoint {ep!r} must look like tcp/HOST:PORT or udp/HOST:PORT")
+                raise ValueError(f"endpoint {ep!r} must look like tcp/HOST:PORT, tls/HOST:PORT or udp/...")
         return v
 
 
@@ -192,28 +248,66 @@ class MavlinkConfig(_Section):
     """MAVLink 2 output (DESIGN.md §6.2)."""
 
     enabled: bool = True
-    url: str = Field("udpout:127.0.0.1:14550", description="pymavlink connection string")
+    url: str = Field(
+        "udpout:127.0.0.1:14550",
+        description="pymavlink connection string; udpin:PORT listens on 127.0.0.1, "
+        "udpin:0.0.0.0:PORT on every interface",
+    )
     sysid: int = Field(42, ge=1, le=254, description="our MAVLink system id (255 is for ground stations)")
     compid: int = Field(191, ge=1, le=255, description="our component id (191: onboard computer)")
     signing_key: FilePath | None = Field(None, description="32-byte key file; null: unsigned")
+    allow: list[str] = Field(
+        default_factory=list,
+        description='who else may command: "HOST" (any port), "HOST:PORT" or a network "10.0.0.0/24"; '
+        "[]: only the udpout target (or the first peer heard on udpin)",
+    )
+
+    @field_validator("url")
+    @classmethod
+    def _url(cls, v: str) -> str:
+        from dronekey.daemon.mavlink.link import validate_url  # no pymavlink import
+
+        return validate_url(v)  # also spells out 127.0.0.1 for a listening URL without a host
+
+    @field_validator("allow")
+    @classmethod
+    def _allow(cls, v: list[str]) -> list[str]:
+        from dronekey.daemon.mavlink.peers import parse_allow_entry
+
+        for entry in v:
+            parse_allow_entry(entry)
+        return v
 
 
 class Sbs1Config(_Section):
-    """SBS-1 (BaseStation) TCP output; needs camera.geo."""
+    """SBS-1 (BaseStation) TCP output; needs camera.geo.
 
-    listen: str | None = Field(None, description="HOST:PORT to listen on, e.g. 0.0.0.0:30003")
+    A port without a host binds 127.0.0.1 and is stored as ``127.0.0.1:PORT``, so ``--print-config``
+    names the address; serving the network takes an explicit host (``0.0.0.0:30003``).
+    """
 
-    @field_validator("listen")
+    listen: str | None = Field(
+        None, description="PORT or :PORT (127.0.0.1), or HOST:PORT, e.g. 30003; 0.0.0.0:30003: the network"
+    )
+    idle_timeout_s: Seconds = Field(
+        10.0, description="disconnect a client that accepts no data for this long while data waits for it"
+    )
+
+    @field_validator("listen", mode="before")
     @classmethod
-    def _host_port(cls, v: str | None) -> str | None:
+    def _host_port(cls, v: Any) -> Any:
         if v is None:
             return v
-        m = _HOST_PORT.match(v)
-        if not m or not m["host"] or not 0 <= int(m["port"]) < 65536:
+        text = str(v).strip() if isinstance(v, int | str) and not isinstance(v, bool) else v
+        if isinstance(text, str) and text.isdigit():
+            text = f":{text}"
+        m = _HOST_PORT.match(text) if isinstance(text, str) else None
+        if not m or not 0 <= int(m["port"]) < 65536:
             raise ValueError(
-                "must be HOST:PORT with a port in 0-65535 (0: any free port), e.g. 0.0.0.0:30003"
+                "must be PORT, :PORT (127.0.0.1) or HOST:PORT with a port in 0-65535 (0: any free port), "
+                "e.g. 30003 or 0.0.0.0:30003"
             )
-        return v
+        return text if m["host"] else f"127.0.0.1:{int(m['port'])}"
 
 
 class McapConfig(_Section):
@@ -227,7 +321,12 @@ class McapConfig(_Section):
     rotate_size_mb: float = Field(1024.0, gt=0, description="start a new file at this size")
     rotate_duration_s: float = Field(3600.0, gt=0, description="start a new file after this long")
     retention_total_mb: float = Field(10240.0, gt=0, description="delete the oldest files beyond this total")
-    min_free_mb: float = Field(500.0, ge=0, description="delete the oldest files to keep this much disk free")
+    min_free_mb: float | None = Field(
+        None,
+        ge=0,
+        description="delete the oldest files to keep this much disk free, else stop writing; "
+        "null: the lesser of 500 MB and 5 % of the disk",
+    )
     compression: Literal["zstd", "lz4", "none"] = "zstd"
 
 
@@ -300,7 +399,7 @@ def load_config(path: Path | None, overrides: dict[str, tuple[Any, str]] | None 
         flag = overrides.get("sbs1.listen", (None, None))[1]
         source = f" (from {flag})" if flag else ""
         raise ConfigError(
-            f"config error: sbs1.listen = {config.sbs1.listen!r}{source}: the SBS-1 output needs "
+            f"config error: sbs1.listen = {_short_repr(config.sbs1.listen)}{source}: the SBS-1 output needs "
             "camera.geo (--camera-geo LAT,LON,ALT_M,YAW,PITCH,ROLL)"
         )
     if config.mcap.dir is None:
@@ -309,19 +408,27 @@ def load_config(path: Path | None, overrides: dict[str, tuple[Any, str]] | None 
 
 
 def _read_yaml(path: Path) -> dict:
+    """The file's top-level mapping, read within the bounds of the module docstring."""
     try:
-        text = Path(path).read_text(encoding="utf-8")
+        with open(path, "rb") as f:
+            raw = f.read(MAX_CONFIG_BYTES + 1)  # never more, whatever the file is (/dev/zero, a FIFO)
+        text = raw.decode("utf-8")
     except FileNotFoundError:
         raise ConfigError(f"config error: file not found: {path}") from None
     except (OSError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"config error: cannot read {path}: {exc}") from None
+        raise ConfigError(f"config error: cannot read {path}: {_clip(str(exc))}") from None
+    if len(raw) > MAX_CONFIG_BYTES:
+        raise ConfigError(
+            f"config error: {path}: larger than {MAX_CONFIG_BYTES // 1000} KB; a config file is a few KB"
+        )
     try:
-        data = yaml.safe_load(text)
+        data = _parse_yaml(text, path)
+    except _Refused as exc:
+        raise ConfigError(f"config error: {path}{_where(exc.problem_mark)}: {exc.problem}") from None
     except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f" line {mark.line + 1} column {mark.column + 1}" if mark is not None else ""
         problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
-        raise ConfigError(f"config error: {path}{where}: invalid YAML: {problem}") from None
+        where = _where(getattr(exc, "problem_mark", None))
+        raise ConfigError(f"config error: {path}{where}: invalid YAML: {_clip(problem)}") from None
     if data is None:
         return {}
     if not isinstance(data, dict):
@@ -332,8 +439,91 @@ def _read_yaml(path: Path) -> dict:
     return data
 
 
+class _Refused(yaml.MarkedYAMLError):
+    """Valid YAML that a config file may not use (anchors, aliases, deep nesting)."""
+
+
+class _ConfigLoader(yaml.SafeLoader):
+    """``yaml.SafeLoader`` that refuses anchors and aliases and nesting beyond ``_MAX_DEPTH``.
+
+    Both are refused while the document is composed, before anything is expanded: an alias is
+    cheap to parse but every later walk over the data (validation, ``repr``) pays for each copy.
+    """
+
+    def __init__(self, stream) -> None:
+        super().__init__(stream)
+        self._depth = 0
+
+    def compose_node(self, parent, index):
+        event = self.peek_event()
+        anchor = getattr(event, "anchor", None)
+        if anchor is not None:
+            mark = "*" if isinstance(event, yaml.AliasEvent) else "&"
+            raise _Refused(
+                problem=f"YAML anchors and aliases ({mark}{_clip(anchor, 20)}) are not allowed in a "
+                "config file; write each value out",
+                problem_mark=event.start_mark,
+            )
+        self._depth += 1
+        try:
+            if self._depth > _MAX_DEPTH:
+                raise _Refused(
+                    problem=f"nested deeper than {_MAX_DEPTH} levels", problem_mark=event.start_mark
+                )
+            return super().compose_node(parent, index)
+        finally:
+            self._depth -= 1
+
+
+def _parse_yaml(text: str, path: Path) -> Any:
+    """Compose (refusing anchors, aliases, deep nesting), reject duplicate keys, then construct."""
+    loader = _ConfigLoader(text)
+    try:
+        node = loader.get_single_node()
+        if node is None:
+            return None
+        _reject_duplicate_keys(node, (), path)
+        return loader.construct_document(node)
+    finally:
+        loader.dispose()
+
+
+def _reject_duplicate_keys(node: yaml.Node, loc: tuple[str, ...], path: Path) -> None:
+    """YAML keeps the last of two equal keys without a word; a config must not hide a setting."""
+    if isinstance(node, yaml.SequenceNode):
+        for i, item in enumerate(node.value):
+            _reject_duplicate_keys(item, (*loc, str(i)), path)
+    elif isinstance(node, yaml.MappingNode):
+        first_line: dict[str, int] = {}
+        for key_node, value_node in node.value:
+            if not isinstance(key_node, yaml.ScalarNode):
+                continue  # a complex key: the constructor rejects it if it cannot be a key
+            key = key_node.value
+            line = key_node.start_mark.line + 1
+            if key in first_line:
+                raise ConfigError(
+                    f"config error: {_dotted((*loc, key))}: duplicate key (in {path} line {line}; "
+                    f"first on line {first_line[key]})"
+                )
+            first_line[key] = line
+            _reject_duplicate_keys(value_node, (*loc, key), path)
+
+
+def _where(mark: yaml.Mark | None) -> str:
+    return f" line {mark.line + 1} column {mark.column + 1}" if mark is not None else ""
+
+
 # Keys holding local paths: relative values in a config file are relative to the file's folder.
-_PATH_KEYS = ("source.uri", "camera.calibration", "model.path", "mavlink.signing_key", "mcap.dir")
+_PATH_KEYS = (
+    "source.uri",
+    "camera.calibration",
+    "model.path",
+    "mavlink.signing_key",
+    "mcap.dir",
+    "zenoh.tls.root_ca",
+    "zenoh.tls.certificate",
+    "zenoh.tls.private_key",
+)
 
 
 def _resolve_relative_paths(data: dict, base: Path) -> None:
@@ -372,10 +562,15 @@ def _default_mcap_dir() -> Path:
 def format_validation_error(
     exc: ValidationError, origin: dict[str, str] | None = None, path: Path | None = None
 ) -> str:
-    """One line per problem: ``config error: <key> = <value> (from <flag or file>): <what is allowed>``."""
+    """One line per problem: ``config error: <key> = <value> (from <flag or file>): <what is allowed>``.
+
+    Values are cut before they are formatted (``_short_repr``), so a huge value costs nothing; at
+    most ``_MAX_ERROR_LINES`` problems are listed and the rest counted.
+    """
     origin = origin or {}
     lines = []
-    for err in exc.errors(include_url=False):
+    errors = exc.errors(include_url=False)
+    for err in errors[:_MAX_ERROR_LINES]:
         loc = tuple(str(p) for p in err["loc"])
         dotted = _dotted(loc)
         field_key = ".".join(p for p in loc if not p.isdigit())
@@ -387,14 +582,17 @@ def format_validation_error(
         msg = err["msg"]
         if err["type"] == "value_error":
             msg = msg.removeprefix("Value error, ")
-        msg = msg[:1].lower() + msg[1:]
+        msg = _clip(msg[:1].lower() + msg[1:], 200)
         lines.append(f"config error: {dotted} = {_short_repr(err.get('input'))}{source}: {msg}")
+    if len(errors) > _MAX_ERROR_LINES:
+        lines.append(f"config error: and {len(errors) - _MAX_ERROR_LINES} more problems")
     return "\n".join(lines)
 
 
 def _dotted(loc: tuple[str, ...]) -> str:
     out = ""
     for part in loc:
+        part = _clip(part, 40)
         out += f"[{part}]" if part.isdigit() else (f".{part}" if out else part)
     return out
 
@@ -410,8 +608,19 @@ def _allowed_keys(loc: tuple[str, ...]) -> list[str]:
     return list(model.model_fields)
 
 
+# Bounded repr: each level shows a few items and a few dozen characters, so the cost does not
+# depend on the size of the value (repr() of a 1 KB YAML alias bomb took 55 s and 3 GB).
+_REPR = reprlib.Repr()
+_REPR.maxlevel, _REPR.maxdict, _REPR.maxlist, _REPR.maxtuple, _REPR.maxset = 3, 4, 4, 4, 4
+_REPR.maxstring = _REPR.maxother = _REPR.maxlong = 60
+
+
 def _short_repr(value: Any, limit: int = 60) -> str:
-    text = repr(value)
+    """``repr(value)`` in at most ``limit`` characters, bounded while it is built."""
+    return _clip(_REPR.repr(value), limit)
+
+
+def _clip(text: str, limit: int = 200) -> str:
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 

@@ -18,6 +18,7 @@ class ExitCode(IntEnum):
     RUNTIME_FAILURE = 1  # an unexpected error while running (a bug, the pipeline failing on every frame)
     USAGE = 2  # bad usage, config, calibration, model or video: fix the command line or the files
     SOURCE_FAILED = 3  # a live source could not be (re)opened within source.max_reconnects
+    SIGHUP = 129  # stopped by SIGHUP (a closed terminal, `systemctl kill -s HUP`), sinks closed
     SIGINT = 130  # stopped by SIGINT (Ctrl-C), sinks closed
     SIGTERM = 143  # stopped by SIGTERM (systemctl stop), sinks closed
 
@@ -27,7 +28,8 @@ EXIT_CODE_HELP = """exit codes:
   1    runtime failure (unexpected error; see the log)
   2    bad usage, config, calibration, model or video (one line on stderr says which)
   3    a live source failed permanently (source.max_reconnects exhausted)
-  130  stopped by SIGINT, 143 stopped by SIGTERM (sinks closed, MCAP finalised)"""
+  129  stopped by SIGHUP, 130 by SIGINT, 143 by SIGTERM (sinks closed, MCAP finalised);
+       under systemd 129 is restarted, so SIGHUP re-reads the config file"""
 
 
 class DaemonError(Exception):

@@ -284,6 +284,11 @@ def sink_entry(name: str, worker: SinkWorker) -> dict:
         health = dict(worker.sink.health())
     except Exception as exc:  # a broken health() must not break the status message
         health = {"error": f"health() failed: {type(exc).__name__}: {exc}"}
+    try:
+        failing = worker.sink.failing()
+        faults = {str(k): int(v) for k, v in worker.sink.fault_counts().items()}
+    except Exception as exc:
+        failing, faults = f"failing() or fault_counts() failed: {type(exc).__name__}: {exc}", {}
     return {
         "name": name,
         "queue_depth": int(worker.depth),
@@ -293,6 +298,8 @@ def sink_entry(name: str, worker: SinkWorker) -> dict:
         "last_error": worker.stats.last_error,
         "latency_ms": {"p50": p50, "p99": p99},
         "health": health,
+        "failing": failing,
+        "faults": faults,
     }
 
 
@@ -319,6 +326,8 @@ def _sink_entries(sinks: Any) -> list[dict]:
                 "last_error": entry.get("last_error"),
                 "latency_ms": _p50_p99(entry.get("latency_ms"), f"sinks[{entry['name']}].latency_ms"),
                 "health": jsonable(dict(entry.get("health") or {})),
+                "failing": None if entry.get("failing") is None else str(entry["failing"]),
+                "faults": {str(k): int(v) for k, v in dict(entry.get("faults") or {}).items()},
             }
         )
     return entries

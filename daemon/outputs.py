@@ -41,16 +41,20 @@ class OutputContext:
 
 def _zenoh(config: DaemonConfig, ctx: OutputContext) -> Sink:
     from dronekey.daemon.messages import info_message
-    from dronekey.daemon.sinks.zenoh_sink import ZenohSink
+    from dronekey.daemon.sinks.zenoh_sink import ZenohSink, ZenohTls
 
     z = config.zenoh
     geo = config.camera.camera_geo()
+    tls = None
+    if z.tls is not None:
+        tls = ZenohTls(z.tls.root_ca, z.tls.certificate, z.tls.private_key, z.tls.verify_name_on_connect)
     return ZenohSink(
         config.camera.id,
         mode=z.mode,
         connect=list(z.connect),
         listen=list(z.listen),
         scouting=z.scouting,
+        tls=tls,
         info=info_message(config.camera.id, ctx.camera, ctx.model_info, geo),
         camera_geo=geo,
     )
@@ -67,6 +71,7 @@ def _mavlink(config: DaemonConfig, ctx: OutputContext) -> Sink:
         signing_key_file=m.signing_key,
         camera_geo=config.camera.camera_geo(),
         simulated=ctx.simulated,
+        allow=list(m.allow),
     )
 
 
@@ -93,7 +98,7 @@ def _mcap(config: DaemonConfig, ctx: OutputContext) -> Sink:
 def _sbs1(config: DaemonConfig, ctx: OutputContext) -> Sink:
     from dronekey.daemon.sinks.sbs1 import Sbs1Sink
 
-    return Sbs1Sink(config.sbs1.listen, config.camera.camera_geo())
+    return Sbs1Sink(config.sbs1.listen, config.camera.camera_geo(), idle_timeout_s=config.sbs1.idle_timeout_s)
 
 
 # name -> (enabled?, builder, flag that disables it)

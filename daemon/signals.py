@@ -1,9 +1,18 @@
-"""SIGTERM / SIGINT handling with a hard shutdown deadline.
+"""SIGTERM / SIGINT / SIGHUP handling with a hard shutdown deadline.
 
-The first signal asks the main loop to stop (it closes the source and every output); a guard thread
-woken through ``signal.set_wakeup_fd`` (so it wakes even while the main thread is inside a long C
-call) ends the process with the signal's exit code if the orderly shutdown has not finished by the
-deadline. A second signal exits at once.
+The first signal asks the main loop to stop (it closes the source and every output and finalises
+the MCAP); a guard thread woken through ``signal.set_wakeup_fd`` (so it wakes even while the main
+thread is inside a long C call) ends the process with the signal's exit code if the orderly
+shutdown has not finished by the deadline.
+
+SIGHUP stops the daemon like SIGTERM (exit 129) rather than reloading in place: nearly every
+setting (source, model, sockets, keys) needs its part rebuilt, and a half-applied config is worse
+than a restart. Under systemd exit 129 is not a success, so ``Restart=on-failure`` starts the
+service again with the config file as it is now: SIGHUP is a reload by restart.
+
+Signals that arrive within ``repeat_window_s`` of the first count as that one: GNU ``timeout``
+signals the child and then its process group, and a group kill reaches the daemon twice. A signal
+after that window exits at once (an operator insisting).
 """
 
 from __future__ import annotations
@@ -23,20 +32,27 @@ __all__ = ["SignalMonitor", "hard_exit"]
 
 log = logging.getLogger(__name__)
 
-_EXIT_CODES = {signal.SIGINT: ExitCode.SIGINT, signal.SIGTERM: ExitCode.SIGTERM}
+_EXIT_CODES = {
+    signal.SIGHUP: ExitCode.SIGHUP,
+    signal.SIGINT: ExitCode.SIGINT,
+    signal.SIGTERM: ExitCode.SIGTERM,
+}
 
 
 class SignalMonitor:
-    """Turns SIGTERM / SIGINT into a stop request, guarded by a hard deadline.
+    """Turns SIGTERM / SIGINT / SIGHUP into a stop request, guarded by a hard deadline.
 
     Parameters
     ----------
     deadline_s : float
         Seconds after the first signal at which the process exits whatever it is doing.
+    repeat_window_s : float
+        Signals within this long of the first are the same request; a later one exits at once.
     """
 
-    def __init__(self, deadline_s: float = 5.0) -> None:
+    def __init__(self, deadline_s: float = 5.0, repeat_window_s: float = 1.0) -> None:
         self.deadline_s = deadline_s
+        self.repeat_window_s = repeat_window_s
         self.stop = threading.Event()
         self.signum: int | None = None
         self.requested_mono: float | None = None
@@ -46,7 +62,7 @@ class SignalMonitor:
 
     @property
     def exit_code(self) -> ExitCode | None:
-        """130 or 143 once a signal arrived, else None."""
+        """129, 130 or 143 once a signal arrived, else None."""
         return None if self.signum is None else _EXIT_CODES[self.signum]
 
     def install(self) -> None:
@@ -63,14 +79,23 @@ class SignalMonitor:
         self._done.set()
 
     def _handle(self, signum: int, _frame) -> None:
+        name = signal.Signals(signum).name
         if self.signum is not None:
-            log.error("second %s: exiting now", signal.Signals(signum).name)
+            if time.monotonic() - self.requested_mono < self.repeat_window_s:
+                log.info(
+                    "%s again within %.0f s of the first signal: already stopping", name, self.repeat_window_s
+                )
+                return
+            log.error("second %s: exiting now", name)
             hard_exit(_EXIT_CODES[signum])
         self.signum = signum
         self.requested_mono = time.monotonic()
-        log.info(
-            "%s: stopping (closing outputs, %.0f s at most)", signal.Signals(signum).name, self.deadline_s
+        restart = (
+            " like SIGTERM, exit 129 (under systemd: a restart, which reads the config again)"
+            if signum == signal.SIGHUP
+            else ""
         )
+        log.info("%s: stopping%s (closing outputs, %.0f s at most)", name, restart, self.deadline_s)
         self.stop.set()
 
     def _guard(self) -> None:

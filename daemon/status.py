@@ -27,6 +27,7 @@ __all__ = [
     "RateMeter",
     "TerminalStatusLine",
     "format_track",
+    "sink_faults",
     "status_figures",
     "status_summary",
 ]
@@ -156,12 +157,27 @@ def status_summary(
         parts.append(f"dropped {capture.dropped} corrupt {capture.corrupt}")
     parts.append(" ; ".join(format_track(t, geo) for t in tracks) if tracks else "no track")
     for name, sink in figures["sinks"].items():
-        flag = "" if sink["errors"] == 0 else f" err {sink['errors']}"
-        parts.append(f"{name} q{sink['queue_depth']}{flag}")
+        faults = sink_faults(sink)
+        parts.append(f"{name} q{sink['queue_depth']}" + (f" {faults}" if faults else ""))
     p99 = figures["latency_ms"]["p99"]
     if p99 is not None and math.isfinite(p99):
         parts.append(f"p99 {p99:.0f} ms")
     return " | ".join(parts)
+
+
+def sink_faults(sink: Mapping, reason_chars: int = 60) -> str:
+    """``err 2, 451 not recorded, FAILING: not recording: ...`` for a ``sink_entry``; "" when fine.
+
+    The part of the status line and the totals that says an output is failing, so a sink that takes
+    every update and delivers none is never shown as just ``published``.
+    """
+    notes = [f"err {sink['errors']}"] if sink.get("errors") else []
+    notes += [f"{count} {what}" for what, count in (sink.get("faults") or {}).items() if count]
+    failing = sink.get("failing")
+    if failing:
+        text = str(failing)
+        notes.append("FAILING: " + (text if len(text) <= reason_chars else text[: reason_chars - 1] + "…"))
+    return ", ".join(notes)
 
 
 class TerminalStatusLine:

@@ -7,6 +7,7 @@ The CLI runs as a real process (exit codes, stderr); the loader is also called i
 from __future__ import annotations
 
 import os
+import resource
 import subprocess
 import sys
 from pathlib import Path
@@ -123,6 +124,70 @@ def test_bad_camera_geo_and_zenoh_endpoint():
     joined = "\n".join(error_lines(result.stderr))
     assert "camera.geo = '91,0,10' (from --camera-geo)" in joined and "latitude" in joined
     assert "zenoh.connect" in joined and "tcp/HOST:PORT" in joined
+
+
+# ------------------------------------------------------------------------------------ exhaustion
+_ALIAS_BOMB = (
+    "source: {uri: sim://seq13}\nmavlink:\n  sysid: [&a [lol,lol,lol,lol,lol,lol,lol,lol,lol], "
+    + ", ".join(f"&{b} [{', '.join([f'*{a}'] * 9)}]" for a, b in zip("abcdefgh", "bcdefghi", strict=True))
+    + "]\n"
+)  # under 1 KB; 9^9 strings once expanded
+
+
+def _bounded() -> None:
+    """The child's limits: 10 s of CPU and 1 GiB of address space (the bomb once took 55 s and 3 GB)."""
+    resource.setrlimit(resource.RLIMIT_CPU, (10, 10))
+    resource.setrlimit(resource.RLIMIT_AS, (1 << 30, 1 << 30))
+
+
+def test_yaml_alias_bomb_is_one_line_and_exit_2(write_config):
+    cfg = write_config(_ALIAS_BOMB)
+    assert cfg.stat().st_size < 1024
+    result = subprocess.run(
+        [sys.executable, "-m", "dronekey.daemon.cli", "--config", str(cfg), "--validate-config"],
+        capture_output=True, text=True, timeout=60, preexec_fn=_bounded,
+    )  # fmt: skip
+    assert result.returncode == ExitCode.USAGE, result.stderr
+    (line,) = error_lines(result.stderr)
+    assert "line 3 column" in line and "anchors and aliases (&a) are not allowed" in line
+    assert "Traceback" not in result.stderr
+
+
+def test_duplicate_key_is_named_with_both_lines(write_config):
+    cfg = write_config("source: {uri: sim://seq13}\nzenoh:\n  mode: client\n  connect: []\n  mode: peer\n")
+    with pytest.raises(ConfigError) as err:
+        load_config(cfg)
+    assert str(err.value) == f"config error: zenoh.mode: duplicate key (in {cfg} line 5; first on line 3)"
+    cfg = write_config("source: {uri: sim://seq13}\nsource: {uri: sim://seq12}\n")
+    with pytest.raises(
+        ConfigError, match=r"^config error: source: duplicate key .* line 2; first on line 1\)$"
+    ):
+        load_config(cfg)
+
+
+def test_oversized_and_deeply_nested_files_are_refused(write_config):
+    cfg = write_config("# padding\n" * 200_000)  # 2 MB of comments
+    with pytest.raises(ConfigError, match=r"larger than 1000 KB; a config file is a few KB$"):
+        load_config(cfg)
+    cfg = write_config("source: " + "[" * 5000 + "]" * 5000 + "\n")  # would overflow the recursive composer
+    with pytest.raises(ConfigError, match=r"line 1 column \d+: nested deeper than 16 levels$"):
+        load_config(cfg)
+
+
+def test_values_are_cut_before_the_error_is_formatted():
+    """A value with 10^13 leaves (shared, so it costs nothing to hold) and a megabyte string: each
+    error line is short, and is built without walking the value."""
+    bomb: list = ["lol"] * 10
+    for _ in range(12):
+        bomb = [bomb] * 10
+    with pytest.raises(ConfigError) as err:
+        load_config(
+            None, {"mavlink.sysid": (bomb, "--mavlink-sysid"), "camera.id": ("b" * 10**6, "--camera-id")}
+        )
+    lines = str(err.value).splitlines()
+    assert len(lines) == 2 and all(len(line) < 250 for line in lines), lines
+    assert any(line.startswith("config error: mavlink.sysid = [[[[") for line in lines)
+    assert any(line.startswith("config error: camera.id = 'bbbb") and "..." in line for line in lines)
 
 
 # ------------------------------------------------------------------------------------ checks

@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import base64
 import json
+import logging
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -417,8 +419,59 @@ def test_full_disk_stops_recording_but_not_tracking(tmp_path):
     health = sink.health()
     assert health["writable"] is False and "min_free_mb" in health["error"]
     assert health["frames_not_recorded"] == 3
+    assert sink.failing().startswith("not recording: free disk space") and str(tmp_path) in sink.failing()
+    assert sink.fault_counts() == {"not recorded": 3}
     sink.close()
     assert mcap_files(tmp_path) == []
+
+
+def test_default_min_free_is_the_lesser_of_500_mb_and_5_percent_said_once(tmp_path, caplog):
+    caplog.set_level(logging.INFO, logger="dronekey.daemon.sinks.mcap_sink")
+    sink = McapSink(tmp_path / "not" / "yet", camera(), "cam0", image_rate_hz=0)  # measured on its parent
+    expected_mb = min(500.0, 0.05 * shutil.disk_usage(tmp_path).total / 1e6)
+    assert sink.health()["min_free_mb"] == pytest.approx(expected_mb, abs=0.1)
+    for i in range(3):
+        sink.handle_update(update(i))
+    sink.close()
+    said = [r.getMessage() for r in caplog.records if "MB free" in r.getMessage()]
+    assert len(said) == 1 and "the lesser of 500 MB and 5 % of the disk" in said[0], said
+    assert McapSink(tmp_path, camera(), "cam0", min_free_mb=0).health()["min_free_mb"] == 0
+
+
+_REFUSED_WRITER = textwrap.dedent(
+    """
+    import json, resource, signal, sys, time
+    sys.path.insert(0, sys.argv[3])
+    from test_mcap_sink import camera, picture, update
+    from dronekey.daemon.sinks.mcap_sink import McapSink
+
+    # Writes past RLIMIT_FSIZE fail with EFBIG once SIGXFSZ is ignored: a disk that is full (ENOSPC)
+    # for this process only. min_free_mb 0: the free-space check does not stop the attempts first.
+    signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+    resource.setrlimit(resource.RLIMIT_FSIZE, (int(sys.argv[2]), resource.RLIM_INFINITY))
+    sink = McapSink(sys.argv[1], camera(), "cam0", min_free_mb=0, chunk_size=1024, retry_interval_s=0.01)
+    for i in range(20):
+        sink.handle_update(update(i, image=picture()))
+        time.sleep(0.02)
+    sink.close()
+    print(json.dumps({"health": sink.health(), "failing": sink.failing(), "faults": sink.fault_counts()}))
+    """
+)
+
+
+@pytest.mark.parametrize("file_limit", [0, 4096])  # the header fails; the header fits, the first chunk fails
+def test_a_full_disk_leaves_no_empty_files(tmp_path, file_limit):
+    result = subprocess.run(
+        [sys.executable, "-c", _REFUSED_WRITER, str(tmp_path), str(file_limit), str(Path(__file__).parent)],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    report = json.loads(result.stdout)
+    assert list(tmp_path.iterdir()) == []
+    assert report["failing"].startswith("not recording: ") and "File too large" in report["failing"]
+    assert report["faults"] == {"not recorded": 20}
+    if file_limit:
+        assert report["health"]["files_opened"] >= 2  # each retry made a file, and removed it
 
 
 _KILLED_WRITER = textwrap.dedent(

@@ -20,6 +20,8 @@ from dronekey.camera import CameraModel
 from dronekey.daemon import messages
 from dronekey.daemon.geo import CameraGeo
 from dronekey.daemon.sinks.base import FrameUpdate, Sink, SinkWorker
+from dronekey.daemon.sources import CaptureStats, SourceState
+from dronekey.daemon.status import PipelineCounters, status_figures, status_summary
 from dronekey.types import Track, TrackStatus
 
 _TYPES = {
@@ -281,6 +283,41 @@ def test_status_message_from_figures_and_real_workers_validates():
     assert entry["name"] == "counting" and entry["published"] == 5 and entry["queue_depth"] == 0
     assert entry["health"] == {"writable": True, "ratio": None}
     assert entry["latency_ms"]["p50"] is not None
+
+
+class _LosingSink(_CountingSink):
+    """Takes every update and delivers none, as an MCAP output on a full disk does."""
+
+    name = "losing"
+
+    def failing(self) -> str | None:
+        return "not recording: No space left on device (/var/lib/dronekey/mcap)"
+
+    def fault_counts(self) -> dict[str, int]:
+        return {"not recorded": self.updates}
+
+
+def test_a_failing_sink_is_named_in_the_status_message_and_line():
+    worker = SinkWorker(_LosingSink())
+    for i in range(3):
+        worker.submit_update(FrameUpdate("cam0", i, i, time.monotonic_ns()))
+    worker.close()
+    capture = CaptureStats(SourceState.STREAMING, 3, 0, 0, 0, None, 0.03)
+    figures = status_figures(
+        healthy=True, started_mono=time.monotonic(), pipeline_fps=30.0, capture=capture,
+        source_uri="clip.mp4", counters=PipelineCounters(),
+        model_info={"name": None, "path": None, "sha256": None}, workers={"mcap": worker},
+    )  # fmt: skip
+    decoded = strict_json(messages.to_json_bytes(messages.status_message("cam0", time.time_ns(), figures)))
+    assert schema_errors(decoded, messages.load_schema("status")) == []
+    (entry,) = decoded["sinks"]
+    assert entry["published"] == 3 and entry["faults"] == {"not recorded": 3}
+    assert entry["failing"].startswith("not recording: No space left")
+    line = status_summary(figures, capture, ())
+    assert (
+        "| mcap q0 3 not recorded, FAILING: not recording: No space left on device (/var/lib/dronekey/m… |"
+        in line
+    )
 
 
 def test_status_sinks_may_be_a_mapping_and_figures_are_checked():

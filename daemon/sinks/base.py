@@ -63,6 +63,23 @@ class Sink(ABC):
         """Sink-specific state for the status message (e.g. ``{"writable": False}``)."""
         return {}
 
+    def failing(self) -> str | None:
+        """Why this output is not doing its job right now, in a few words; None while it is.
+
+        An output that takes every update but records or sends none of them (a full disk, no
+        route) must not look healthy: this goes into the status line, the status message
+        (``sinks[].failing``) and the totals. Called from other threads; keep it a cheap read.
+        """
+        return None
+
+    def fault_counts(self) -> dict[str, int]:
+        """What did not get through since start, in this output's words, e.g.
+        ``{"not recorded": 451}`` (MCAP), ``{"unsent": 12}`` (Zenoh), ``{"refused": 3}`` (MAVLink
+        commands refused). Non-zero counts are shown in the status line and the totals, and sent
+        as ``sinks[].faults``; the worker's ``published`` only counts updates the sink took.
+        """
+        return {}
+
     def wants_image(self, t_ns: int) -> bool:
         """Whether the update of the frame at ``t_ns`` should carry the image (default: never).
 

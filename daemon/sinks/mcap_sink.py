@@ -23,8 +23,13 @@ closed at least every ``chunk_max_age_s``. A killed file has no summary or foote
 ``mcap.stream_reader.StreamReader`` (or ``mcap recover``), see docs/outputs.md.
 
 Faults never leave the sink: an unwritable or full folder makes ``health()`` report
-``{"writable": False, "error": ...}`` and the sink retries every ``retry_interval_s`` while tracking
-goes on.
+``{"writable": False, "error": ...}`` (and ``failing()`` say "not recording: ..."), the frames that
+miss the log are counted, and the sink retries every ``retry_interval_s`` while tracking goes on.
+A file that failed before it held one complete chunk is deleted, so a full disk leaves no empty
+files behind, one per retry.
+
+Free space: by default the sink keeps the lesser of 500 MB and 5 % of the disk free (a fixed 500 MB
+would leave nothing to record on an 8 GB card), and says the figure once when it starts.
 """
 
 from __future__ import annotations
@@ -65,6 +70,8 @@ TOPICS: dict[str, str] = {
 }
 
 _MB = 1_000_000
+_MIN_FREE_FLOOR_MB = 500.0  # the default free-space reserve on big disks ...
+_MIN_FREE_SHARE = 0.05  # ... and on small ones this share of the disk, whichever is less
 _CALIBRATION_PERIOD_NS = 1_000_000_000  # re-written so a reader seeking anywhere finds one nearby
 _RETENTION_CHECK_S = 5.0
 
@@ -105,6 +112,7 @@ class _FdStream:
     def __init__(self, fd: int) -> None:
         self._fd = fd
         self._position = 0
+        self.completed = 0  # end of the last write that went through whole (a whole record)
 
     def write(self, data: bytes) -> int:
         view = memoryview(data)
@@ -112,6 +120,7 @@ class _FdStream:
             written = os.write(self._fd, view)
             view = view[written:]
             self._position += written
+        self.completed = self._position
         return len(data)
 
     def tell(self) -> int:
@@ -142,7 +151,10 @@ class _Recording:
             self._writer.add_metadata("dronekey", metadata)
         except BaseException:
             os.close(self._fd)
+            with contextlib.suppress(OSError):
+                path.unlink()  # a full disk must not leave an empty file per retry
             raise
+        self._preamble_bytes = self._stream.completed  # magic, header, metadata: no message yet
         self.path = path
         self.opened_mono = time.monotonic()
         self.last_calibration_t_ns: int | None = None
@@ -173,17 +185,23 @@ class _Recording:
             self._chunk_opened_mono = None
 
     def finish(self) -> None:
-        """Write the summary and footer, sync and close the file."""
+        """Write the summary and footer, sync and close the file (deleted if it failed empty)."""
         try:
             self._writer.finish()
             os.fsync(self._fd)
-        finally:
-            os.close(self._fd)
+        except OSError:
+            self.abandon()
+            raise
+        os.close(self._fd)
 
     def abandon(self) -> None:
-        """Close the file as it is (after an I/O error): completed chunks stay readable."""
+        """Close the file as it is (after an I/O error): completed chunks stay readable; a file
+        with no complete chunk holds nothing and is deleted."""
         with contextlib.suppress(OSError):
             os.close(self._fd)
+        if self._stream.completed <= self._preamble_bytes:
+            with contextlib.suppress(OSError):
+                self.path.unlink()
 
 
 class McapSink(Sink):
@@ -209,9 +227,10 @@ class McapSink(Sink):
         Start a new file when the current one reaches this size (MB = 10^6 bytes) or age (s).
     retention_total_mb : float
         Delete the oldest recordings of this camera while all of them together exceed this.
-    min_free_mb : float
+    min_free_mb : float or None
         Delete the oldest recordings while the disk has less free space than this; if it is still
-        short, stop writing (``health()`` says so) and retry.
+        short, stop writing (``health()`` and ``failing()`` say so) and retry. None: the lesser of
+        500 MB and 5 % of the disk that holds ``directory``.
     chunk_size : int
         Uncompressed bytes per chunk, at most.
     chunk_max_age_s : float
@@ -238,7 +257,7 @@ class McapSink(Sink):
         rotate_size_mb: float = 1024.0,
         rotate_duration_s: float = 3600.0,
         retention_total_mb: float = 10240.0,
-        min_free_mb: float = 500.0,
+        min_free_mb: float | None = None,
         chunk_size: int = 1 << 20,
         chunk_max_age_s: float = 2.0,
         compression: str = "zstd",
@@ -251,7 +270,7 @@ class McapSink(Sink):
         _require(rotate_size_mb > 0, "rotate_size_mb", rotate_size_mb, "> 0")
         _require(rotate_duration_s > 0, "rotate_duration_s", rotate_duration_s, "> 0")
         _require(retention_total_mb > 0, "retention_total_mb", retention_total_mb, "> 0")
-        _require(min_free_mb >= 0, "min_free_mb", min_free_mb, ">= 0")
+        _require(min_free_mb is None or min_free_mb >= 0, "min_free_mb", min_free_mb, ">= 0 or None")
         _require(chunk_size >= 1024, "chunk_size", chunk_size, ">= 1024")
         _require(chunk_max_age_s > 0, "chunk_max_age_s", chunk_max_age_s, "> 0")
         _require(retry_interval_s > 0, "retry_interval_s", retry_interval_s, "> 0")
@@ -271,7 +290,7 @@ class McapSink(Sink):
         self._rotate_bytes = int(rotate_size_mb * _MB)
         self._rotate_duration_s = float(rotate_duration_s)
         self._retention_bytes = int(retention_total_mb * _MB)
-        self._min_free_bytes = int(min_free_mb * _MB)
+        self._min_free_bytes = _min_free_bytes(self._directory, min_free_mb)
         self._chunk_size = int(chunk_size)
         self._chunk_max_age_s = float(chunk_max_age_s)
         self._compression = _compression(compression)
@@ -285,6 +304,7 @@ class McapSink(Sink):
         self._closed = False
         self._writable = True
         self._error: str | None = None
+        self._failing: str | None = None  # the same, the reason first (a status line is short)
         self._next_open_mono = 0.0
         self._next_retention_mono = 0.0
         self._files_opened = 0
@@ -321,6 +341,7 @@ class McapSink(Sink):
             self._recording.close_chunk_if_older(self._chunk_max_age_s)
             self._check_disk_if_due()
         except OSError as exc:
+            self._frames_not_recorded += 1  # (and the chunk in progress, which is lost with it)
             self._fail(exc)
 
     def handle_status(self, status: dict) -> None:
@@ -366,7 +387,16 @@ class McapSink(Sink):
             "compression": self._compression.name.lower(),
             "messages": sum(self._counts.values()),
             "frames_not_recorded": self._frames_not_recorded,
+            "min_free_mb": round(self._min_free_bytes / _MB, 1),
         }
+
+    def failing(self) -> str | None:
+        """``not recording: <why>`` while no file can be written, else None."""
+        return None if self._writable else self._failing
+
+    def fault_counts(self) -> dict[str, int]:
+        """``{"not recorded": frames}``: frames that reached the sink but not the log."""
+        return {"not recorded": self._frames_not_recorded}
 
     def close(self) -> None:
         """Finalise the current file (summary, footer, fsync)."""
@@ -481,7 +511,7 @@ class McapSink(Sink):
             log.info("MCAP recording recovered: writing %s", self._recording.path)
         else:
             log.info("MCAP recording to %s", self._recording.path)
-        self._writable, self._error = True, None
+        self._writable, self._error, self._failing = True, None, None
         self._next_retention_mono = time.monotonic() + _RETENTION_CHECK_S
         return True
 
@@ -544,6 +574,7 @@ class McapSink(Sink):
         if text != self._error:
             log.warning("MCAP recording stopped: %s; retrying every %.0f s", text, self._retry_interval_s)
         self._writable, self._error = False, text
+        self._failing = f"not recording: {exc.strerror or exc} ({where})"
 
     # ------------------------------------------------------------------ retention and disk space
     def _check_disk_if_due(self) -> None:
@@ -619,6 +650,33 @@ class _ImageSchedule:
         slot, period = self._next_t_ns, self._period_ns
         on_grid = slot is not None and 0 <= t_ns - slot < period
         self._next_t_ns = slot + period if on_grid else t_ns + period
+
+
+def _min_free_bytes(directory: Path, min_free_mb: float | None) -> int:
+    """The free space to keep, in bytes: ``min_free_mb``, or by default the lesser of 500 MB and
+    5 % of the disk that holds ``directory`` (its nearest existing parent); logged once."""
+    if min_free_mb is not None:
+        log.info("MCAP keeps %.0f MB free on the disk of %s (mcap.min_free_mb)", min_free_mb, directory)
+        return int(min_free_mb * _MB)
+    probe = directory.absolute()
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    try:
+        total = shutil.disk_usage(probe).total
+    except OSError as exc:
+        log.warning("MCAP cannot measure the disk of %s (%s): keeping 500 MB free", directory, exc)
+        return int(_MIN_FREE_FLOOR_MB * _MB)
+    keep = min(_MIN_FREE_FLOOR_MB * _MB, _MIN_FREE_SHARE * total)
+    log.info(
+        "MCAP keeps %.0f MB free on the %.1f GB disk of %s (mcap.min_free_mb null: the lesser of "
+        "%.0f MB and %.0f %% of the disk)",
+        keep / _MB,
+        total / 1e9,
+        directory,
+        _MIN_FREE_FLOOR_MB,
+        _MIN_FREE_SHARE * 100,
+    )
+    return int(keep)
 
 
 def _require(ok: bool, name: str, value, allowed: str) -> None:
