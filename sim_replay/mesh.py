@@ -204,6 +204,8 @@ class DroneStyle:
             prop_op, blade_op, smear = rng.uniform(0.05, 0.25), rng.uniform(0.4, 0.8), rng.uniform(8, 40)
         else:
             prop_op, blade_op, smear = 0.0, rng.uniform(0.85, 1.0), rng.uniform(3, 8)
+        # gimbals are mostly black or dark grey, whatever the shell
+        gimbal_grey = rng.uniform(0.03, 0.25) if rng.random() < 0.75 else rng.uniform(0.05, 0.8)
         under = body * rng.uniform(0.3, 1.0) if rng.random() < 0.7 else rng.uniform(0.05, 0.5) * np.ones(3)
         return cls(
             body=tuple(body),
@@ -216,8 +218,7 @@ class DroneStyle:
             blade_opacity=float(blade_op),
             blade_angle_deg=float(rng.uniform(0, 360)),
             blade_smear_deg=float(smear),
-            # gimbals are mostly black or dark grey, whatever the shell
-            gimbal=tuple(np.full(3, rng.uniform(0.03, 0.25) if rng.random() < 0.75 else rng.uniform(0.05, 0.8))),
+            gimbal=tuple(np.full(3, gimbal_grey)),
             gloss=float(rng.choice([0.0, rng.uniform(0.2, 1.0), rng.uniform(1.5, 4.0)], p=[0.3, 0.45, 0.25])),
             camo=camo,
             front_led=front,
