@@ -4,12 +4,11 @@ Checkpoints stay outside git (they are large and machine-local); the exported mo
 Fine-tuning from the shipped model (``dronekey-train --init-from dronekey_edge.onnx``) therefore
 needs its weights as a ``state_dict``. The exporter (``dronekey.export``) writes them in two ways:
 
-- by name (``inner.<parameter>``): most parameters, and every backbone convolution, whose
-  BatchNorm the exporter folded in (``<conv>.weight`` W' = W gamma / sigma, ``<conv>.weight_bias``
-  b' = beta - gamma mu / sigma);
-- as anonymous constants: the transformer's linear weights (transposed, next to a MatMul whose
-  ``pkg.torch.onnx.name_scopes`` metadata names the module) and the attention's q, k, v biases
-  (slices of ``in_proj_bias`` added in that order, layer by layer).
+- as inputs of nodes whose ``pkg.torch.onnx.name_scopes`` metadata names the module: backbone
+  convolutions with their BatchNorm folded in (W' = W gamma / sigma, b' = beta - gamma mu / sigma),
+  linear weights transposed next to a MatMul, biases next to an Add, LayerNorm and Gemm inputs;
+- as constants of nodes without a module scope: the attention's q, k, v projections (sliced out
+  of ``in_proj_weight`` / ``in_proj_bias``, in that order, before the layer's ``out_proj``).
 
 Folded BatchNorm cannot be unfolded (gamma and sigma come out only as their ratio), so each BN
 becomes the identity plus b' (weight 1, bias b', running mean 0, running variance 1 - eps) and
@@ -51,7 +50,13 @@ def _scope(node) -> list[str]:
 def weights_from_onnx(path: str | Path, net: nn.Module) -> dict[str, torch.Tensor]:
     """A ``state_dict`` for ``net`` (a ``DroneKeyNet`` of the same architecture) from the export at
     ``path``; tensors the export lacks (e.g. a head it has not) are left out. BatchNorm layers come
-    back folded (see the module docstring): train with ``frozen_batchnorm``."""
+    back folded (see the module docstring): train with ``frozen_batchnorm``.
+
+    The graph is walked node by node and each constant is given to the module its node's name
+    scope names, whatever the constant is called: the exporter shares one initializer between equal
+    tensors (all-zero biases of an untrained network) and folds some slices, so names alone do not
+    say whose a constant is.
+    """
     import onnx
     from onnx import numpy_helper
 
@@ -64,46 +69,82 @@ def weights_from_onnx(path: str | Path, net: nn.Module) -> dict[str, torch.Tenso
         raise OnnxWeightsError(f"{path}: not a readable ONNX model ({exc})") from None
     init = {i.name: numpy_helper.to_array(i) for i in model.graph.initializer}
     own = net.state_dict()
+    modules = dict(net.named_modules())
     out: dict[str, torch.Tensor] = {}
-    for name, value in init.items():
-        if not name.startswith(PREFIX):
-            continue
-        key = name[len(PREFIX) :]
-        if key.endswith(".weight_bias"):  # folded BN of the conv: the next module is its BatchNorm
-            conv = key[: -len(".weight_bias")]
-            parent, index = conv.rsplit(".", 1)
-            bn = f"{parent}.{int(index) + 1}"
-            if f"{bn}.running_var" not in own:
-                raise OnnxWeightsError(f"{path}: no BatchNorm after {conv} in this network")
-            eps = dict(net.named_modules())[bn].eps
-            out[f"{bn}.weight"] = torch.ones_like(own[f"{bn}.weight"])
-            out[f"{bn}.bias"] = torch.from_numpy(value.copy())
-            out[f"{bn}.running_mean"] = torch.zeros_like(own[f"{bn}.running_mean"])
-            out[f"{bn}.running_var"] = torch.full_like(own[f"{bn}.running_var"], 1.0 - eps)
-        elif key in own:
-            out[key] = torch.from_numpy(value.copy())
-    q_k_v_biases: list[np.ndarray] = []
+
+    def put(key: str, value: np.ndarray) -> None:
+        if key not in own or tuple(own[key].shape) != tuple(value.shape):
+            raise OnnxWeightsError(
+                f"{path}: {key} {tuple(value.shape)} does not fit this network "
+                f"({tuple(own[key].shape) if key in own else 'no such tensor'})"
+            )
+        out[key] = torch.from_numpy(np.ascontiguousarray(value))
+
+    def folded_bn(conv: str, bias: np.ndarray) -> None:
+        parent, index = conv.rsplit(".", 1)
+        bn = f"{parent}.{int(index) + 1}"
+        if not isinstance(modules.get(bn), nn.modules.batchnorm._BatchNorm):
+            raise OnnxWeightsError(f"{path}: no BatchNorm after {conv} in this network")
+        put(f"{bn}.weight", np.ones_like(bias))
+        put(f"{bn}.bias", bias)
+        put(f"{bn}.running_mean", np.zeros_like(bias))
+        put(f"{bn}.running_var", np.full_like(bias, 1.0 - modules[bn].eps))
+
+    anonymous: dict[str, list[np.ndarray]] = {"MatMul": [], "Add": []}  # q, k, v of the next layer
     for node in model.graph.node:
-        consts = [i for i in node.input if i in init and not i.startswith(PREFIX)]
-        if not consts:
-            continue
+        consts = {j: init[i] for j, i in enumerate(node.input) if i in init}
         scope = _scope(node)
         module = next((s[len(PREFIX) :] for s in reversed(scope) if s.startswith(PREFIX)), None)
-        if node.op_type == "MatMul" and module and f"{module}.weight" in own:
-            out[f"{module}.weight"] = torch.from_numpy(init[consts[0]].T.copy())
-        elif node.op_type == "Add" and module is None and consts[0].startswith("slice"):
-            q_k_v_biases.append(init[consts[0]])
-    layers = [k[: -len(".self_attn.in_proj_bias")] for k in own if k.endswith(".self_attn.in_proj_bias")]
-    if len(q_k_v_biases) != 3 * len(layers):
-        raise OnnxWeightsError(
-            f"{path}: found {len(q_k_v_biases)} attention biases for {len(layers)} layers (expected 3 each)"
-        )
-    for n, layer in enumerate(layers):
-        q, k, v = q_k_v_biases[3 * n : 3 * n + 3]
-        out[f"{layer}.self_attn.in_proj_bias"] = torch.from_numpy(np.concatenate([q, k, v]))
-    bad = [k for k, v in out.items() if k not in own or tuple(own[k].shape) != tuple(v.shape)]
-    if bad:
-        raise OnnxWeightsError(f"{path}: weights that do not fit this network: {bad[:5]}")
+        op = node.op_type
+        if op == "Slice" and node.input[0].endswith(".self_attn.in_proj_weight"):
+            key = node.input[0][len(PREFIX) :]
+            if key not in out:
+                put(key, init[node.input[0]])
+            continue
+        if not consts or (module is None and op not in anonymous):
+            continue
+        if module is None:  # q, k or v projection of the layer whose out_proj comes next
+            if op == "MatMul" and 1 in consts and consts[1].ndim == 2:
+                anonymous["MatMul"].append(consts[1].T)
+            elif op == "Add" and consts and next(iter(consts.values())).ndim == 1:
+                anonymous["Add"].append(next(iter(consts.values())))
+            continue
+        if module.endswith(".self_attn.out_proj"):
+            layer = module[: -len(".out_proj")]
+            weights, biases = anonymous["MatMul"], anonymous["Add"]
+            if len(weights) == 3:
+                put(f"{layer}.in_proj_weight", np.concatenate(weights))
+            if len(biases) == 3:
+                put(f"{layer}.in_proj_bias", np.concatenate(biases))
+            elif f"{layer}.in_proj_bias" not in out:
+                raise OnnxWeightsError(
+                    f"{path}: found {len(biases)} attention biases for {layer} (expected 3)"
+                )
+            anonymous = {"MatMul": [], "Add": []}
+        if op == "Conv":
+            # a folded conv's scope may name its BatchNorm; the weight's own name names the conv
+            weight_name = node.input[1]
+            if weight_name.startswith(PREFIX) and weight_name.endswith(".weight"):
+                module = weight_name[len(PREFIX) : -len(".weight")]
+            put(f"{module}.weight", consts[1])
+            if 2 in consts:
+                if f"{module}.bias" in own:
+                    put(f"{module}.bias", consts[2])
+                else:
+                    folded_bn(module, consts[2])
+        elif op == "MatMul" and 1 in consts:
+            put(f"{module}.weight", consts[1].T)
+        elif op == "Add" and f"{module}.bias" in own:
+            put(f"{module}.bias", next(iter(consts.values())))
+        elif op == "Gemm":
+            trans_b = next((a.i for a in node.attribute if a.name == "transB"), 0)
+            put(f"{module}.weight", consts[1] if trans_b else consts[1].T)
+            if 2 in consts:
+                put(f"{module}.bias", consts[2])
+        elif op == "LayerNormalization":
+            put(f"{module}.weight", consts[1])
+            if 2 in consts:
+                put(f"{module}.bias", consts[2])
     _check_against_runtime(path, net, out)
     return out
 

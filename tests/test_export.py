@@ -228,3 +228,24 @@ def test_mirror_average_equals_the_mean_of_a_crop_and_its_mirror(onnx_path):
         expected = from_normalised((a.keypoints[i] + kb[i]) / 2, roi)
         np.testing.assert_allclose(det.keypoints_px, expected, atol=1e-3)
         assert det.presence == pytest.approx((a.presence[i] + b.presence[i]) / 2, abs=1e-5)
+
+
+def test_weights_read_back_from_the_export_reproduce_the_network(trained_like, onnx_path):
+    """dronekey-train --init-from MODEL.onnx: the rebuilt network (BatchNorm folded, then frozen)
+    computes what the export computes, and what the checkpoint it came from computed."""
+    from dronekey.onnx_weights import OnnxWeightsError, frozen_batchnorm, weights_from_onnx
+
+    torch.manual_seed(1)
+    fresh = DroneKeyNet(TINY)
+    weights = weights_from_onnx(onnx_path, fresh)  # checks itself against ONNX Runtime
+    fresh.load_state_dict(weights, strict=False)
+    fresh.train()
+    assert frozen_batchnorm(fresh) > 0
+    x = torch.randn(3, 3, 64, 64)
+    with torch.no_grad():
+        got, expected = fresh(x), trained_like(x)
+    # train mode with frozen BatchNorm: the same function as the trained network in eval mode
+    assert torch.allclose(got.keypoints, expected.keypoints, atol=1e-4)
+    assert torch.allclose(got.presence_logit, expected.presence_logit, atol=1e-3)
+    with pytest.raises(OnnxWeightsError, match="model not found"):
+        weights_from_onnx(onnx_path.parent / "missing.onnx", fresh)
