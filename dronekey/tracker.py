@@ -250,7 +250,10 @@ class _TrackRecord:
     def heading_confidence(self) -> float:
         if self.heading_log_odds is None:
             return float("nan")
-        return math.tanh(self.heading_log_odds / 2)
+        # 2p - 1 with p = sigmoid(L), the probability that the published front is right. Below 0
+        # (L < 0, inside the turn-around hysteresis) the published front is more likely wrong than
+        # right: no confidence in it at all, 0, not a negative figure outputs would have to refuse.
+        return max(0.0, math.tanh(self.heading_log_odds / 2))
 
     def predict_to(self, t_ns: int) -> None:
         dt = (t_ns - self.t_ns) / _NS_PER_S

@@ -129,3 +129,11 @@ def test_nose_first_motion_tells_the_front_when_asked_and_only_then():
             assert track.heading_confidence > 0.8 and angle < 5.0
         else:
             assert abs(track.heading_confidence) < 0.1
+
+
+def test_a_front_more_likely_wrong_than_right_has_no_confidence_never_a_negative_one():
+    tracker = Tracker()
+    R = seen_from_below(25.0)
+    # evidence against the track's front, too weak to turn it around (the switch hysteresis)
+    (track,) = run(tracker, R, 3, 0.4)  # log-odds 3 x 0.3 x log(0.4 / 0.6) = -0.36: tanh would be -0.18
+    assert track.heading_confidence == 0.0

@@ -197,6 +197,7 @@ def test_client_mode_without_router_neither_raises_nor_hangs():
     sink.close()
     closed_s = time.monotonic() - started
     assert sink.health()["state"] == "closed"
+    assert sink.failing() is None and sink.fault_counts() == {"unsent": 15}  # closed on purpose
     # Generous bounds on a shared machine; the real figures are milliseconds.
     assert constructed_s < 5 and closed_s < 5
 

@@ -293,8 +293,9 @@ class ZenohSink(Sink):
         self._published += 1
 
     def failing(self) -> str | None:
-        """Why nothing is published (the session is not open), or None once it is."""
-        if self._declared is not None:
+        """Why nothing is published (the session is not open yet), or None once it is, and after
+        ``close`` (closed on purpose; what went unsent stays in ``fault_counts``)."""
+        if self._declared is not None or self._state == "closed":
             return None
         return f"session {self._state}" + (f": {self._error}" if self._error else "")
 
