@@ -94,7 +94,7 @@ def advice(
 
 
 def calibration_json(result: CalibrationResult, rejected: Sequence[RejectedView]) -> dict:
-    """The ``--json`` object: exactly the keys issue 6 lists.
+    """The ``--json`` object: exactly the keys docs/calibration.md lists.
 
     ``per_view_rms`` follows the order of the views used: the pictures in name order (video frames in
     time order) minus those in ``rejected``.

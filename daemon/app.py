@@ -64,7 +64,7 @@ PipelineFactory = Callable[[CameraModel, DaemonConfig], Pipeline]
 
 
 def default_pipeline_factory(camera: CameraModel, config: DaemonConfig) -> Pipeline:
-    """The tracking pipeline of issue 4 with the configured model, drone and inference threads."""
+    """The tracking pipeline with the configured model, drone and inference threads."""
     from dronekey.pipeline import TrackingPipeline
 
     m = config.model

@@ -1,4 +1,4 @@
-"""``dronekey-bench sampler``: how fast the training sampler renders crops (issue 2's figure).
+"""``dronekey-bench sampler``: how fast the training sampler renders crops.
 
 Training draws every crop fresh from ``sim_replay.sampler.CropSampler`` in DataLoader workers, so
 its rate per core bounds the training throughput: the trainer needs ``batch / step time`` crops per

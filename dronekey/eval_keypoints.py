@@ -1,4 +1,4 @@
-"""Keypoint evaluation on freshly rendered frames (issue 3's AP^kp / SR90 / SR95 / presence AUC).
+"""Keypoint evaluation on freshly rendered frames (AP^kp / SR90 / SR95 / presence AUC).
 
 Renders N frames of a preset with a seed, crops around each ground-truth drone box with the crop
 policy the model was trained with (the same jitter of centre and scale that stands in for the

@@ -1,4 +1,4 @@
-"""Secure by default (issue 12): a daemon on its defaults opens no socket beyond this machine.
+"""Secure by default: a daemon on its defaults opens no socket beyond this machine.
 
 ``dronekey-daemon`` runs as a real process with every output on its default (Zenoh, MAVLink, MCAP)
 plus SBS-1 given only a port; ``psutil`` lists its sockets as ``ss -lntup`` would, and every

@@ -1,4 +1,4 @@
-"""The MAVLink sink against hostile peers (issue 12): real pymavlink senders on other UDP ports of
+"""The MAVLink sink against hostile peers: real pymavlink senders on other UDP ports of
 127.0.0.1, a replay across a restart, a forged-timestamp packet, a 2-byte datagram, a flood."""
 
 from __future__ import annotations
