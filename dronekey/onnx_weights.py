@@ -19,6 +19,7 @@ Runtime on a probe batch before returning.
 
 from __future__ import annotations
 
+import ast
 import logging
 from pathlib import Path
 
@@ -41,8 +42,6 @@ class OnnxWeightsError(ValueError):
 def _scope(node) -> list[str]:
     for prop in node.metadata_props:
         if prop.key == "pkg.torch.onnx.name_scopes":
-            import ast
-
             return list(ast.literal_eval(prop.value))
     return []
 

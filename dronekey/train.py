@@ -476,7 +476,7 @@ def train(args: argparse.Namespace) -> dict:
     params = [p for p in net.parameters() if p.requires_grad]
     aux = None
     if recipe.heatmap_weight and net.config.backbone == "edge":
-        from dronekey.heatmap_aux import PropellerHeatmaps
+        from dronekey.heatmap_aux import PropellerHeatmaps, heatmap_loss
 
         aux = PropellerHeatmaps(net.backbone, net.config.edge_widths, net.config.edge_depths)
         aux = aux.to(memory_format=torch.channels_last).train()
@@ -570,8 +570,6 @@ def train(args: argparse.Namespace) -> dict:
             if out_net.nose is not None and bool(present.any()):
                 loss = loss + recipe.heading_weight * nose_loss(out_net.nose.float()[present], kp[present])
             if aux is not None:
-                from dronekey.heatmap_aux import heatmap_loss
-
                 with torch.autocast("cpu", dtype=torch.bfloat16, enabled=use_bf16):
                     maps = aux()
                 loss = loss + recipe.heatmap_weight * heatmap_loss(maps, kp, present, x.shape[-1])

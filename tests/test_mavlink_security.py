@@ -14,16 +14,11 @@ from pydantic import ValidationError
 from test_mavlink_sink import GCS_COMPID, GCS_SYSID, KEY, GroundStation, connect, make_track, update
 
 from dronekey.daemon.config import DaemonConfig, config_to_yaml
-from dronekey.daemon.mavlink import MavlinkSink, load_dialect
+from dronekey.daemon.mavlink import MavlinkSink
 from dronekey.daemon.mavlink.verify import StreamTimestamps
 
 SYSID, COMPID = 42, 191
 TARGET_RELATIVE = 511
-
-
-@pytest.fixture(scope="module")
-def dialect(tmp_path_factory):
-    return load_dialect(tmp_path_factory.mktemp("mavlink-dialect"))
 
 
 @pytest.fixture
@@ -38,21 +33,6 @@ def stations(dialect):
     yield make
     for station in made:
         station.close()
-
-
-@pytest.fixture
-def make_sink(dialect):
-    sinks = []
-
-    def make(url: str, **kwargs) -> MavlinkSink:
-        kwargs.setdefault("dialect_cache_dir", dialect.__file__.rsplit("/", 1)[0])
-        sink = MavlinkSink(url, SYSID, COMPID, **kwargs)
-        sinks.append(sink)
-        return sink
-
-    yield make
-    for sink in sinks:
-        sink.close()
 
 
 @pytest.fixture

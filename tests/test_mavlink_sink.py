@@ -13,7 +13,7 @@ import pytest
 from pymavlink import mavutil
 
 from dronekey.daemon.geo import CameraGeo
-from dronekey.daemon.mavlink import MavlinkSink, SigningKeyError, load_dialect, use_dialect
+from dronekey.daemon.mavlink import MavlinkSink, SigningKeyError, use_dialect
 from dronekey.daemon.sinks.base import FrameUpdate, SinkWorker
 from dronekey.rotations import matrix_to_quat_wxyz
 from dronekey.types import Track, TrackStatus
@@ -22,11 +22,6 @@ SYSID, COMPID = 42, 191
 GCS_SYSID, GCS_COMPID = 255, 190
 KEY = bytes(range(100, 132))
 GEO = CameraGeo.parse("47.3977,8.5456,488.0,30,5,0")
-
-
-@pytest.fixture(scope="module")
-def dialect(tmp_path_factory):
-    return load_dialect(tmp_path_factory.mktemp("mavlink-dialect"))
 
 
 class GroundStation:
@@ -83,21 +78,6 @@ def gcs(dialect):
     station = GroundStation(dialect)
     yield station
     station.close()
-
-
-@pytest.fixture
-def make_sink(dialect, tmp_path):
-    sinks = []
-
-    def make(url: str, **kwargs) -> MavlinkSink:
-        kwargs.setdefault("dialect_cache_dir", dialect.__file__.rsplit("/", 1)[0])
-        sink = MavlinkSink(url, SYSID, COMPID, **kwargs)
-        sinks.append(sink)
-        return sink
-
-    yield make
-    for sink in sinks:
-        sink.close()
 
 
 def make_track(
