@@ -1,6 +1,6 @@
 """Intrinsics from board views: OpenCV's pinhole or fisheye calibration, with outlier views dropped.
 
-Pixel coordinates follow DESIGN.md §4 (origin at the top-left pixel's centre), so "the image centre"
+Pixel coordinates follow docs/design.md §4 (origin at the top-left pixel's centre), so "the image centre"
 is ((w - 1) / 2, (h - 1) / 2). That is where the installed OpenCV (5.0) puts a principal point fixed
 without a guess; older releases used (w / 2, h / 2) (the vendored reference calibration of
 tests/data/calib-real has (320, 256) for 640 x 512), which ``principal_point`` reproduces.
@@ -17,7 +17,7 @@ import numpy as np
 
 from dronekey.calib.errors import CalibInputError
 from dronekey.calib.views import BoardView, RejectedView
-from dronekey.camera import CameraModel
+from dronekey.geometry.camera import CameraModel
 
 __all__ = [
     "MIN_VIEWS",

@@ -1,4 +1,5 @@
-"""The calibration file: OpenCV FileStorage YAML as OpenCV's calibration sample writes it (DESIGN.md §5.2).
+"""The calibration file: OpenCV FileStorage YAML as OpenCV's calibration sample writes it
+(docs/design.md §5.2).
 
 Written keys: ``calibration_time``, ``nr_of_frames``, ``image_width``, ``image_height``,
 ``pattern``, ``board_width``, ``board_height``, ``square_size`` (metres), ``marker_size`` and
@@ -6,7 +7,7 @@ Written keys: ``calibration_time``, ``nr_of_frames``, ``image_width``, ``image_h
 ``distortion_coefficients`` (1xN: k1 k2 p1 p2 k3, or k1..k4 for the fisheye model),
 ``avg_reprojection_error`` (px), ``per_view_reprojection_errors`` (Nx1 px),
 ``extrinsic_parameters`` (Nx6: Rodrigues vector, translation in metres, board in camera frame)
-and ``views`` (the picture of each row). ``dronekey.camera.CameraModel.load`` reads it.
+and ``views`` (the picture of each row). ``dronekey.geometry.camera.CameraModel.load`` reads it.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ import numpy as np
 from dronekey.calib.calibrate import CalibrationResult
 from dronekey.calib.errors import CalibInputError
 from dronekey.calib.patterns import BoardPattern
-from dronekey.camera import CalibrationError, CameraModel
+from dronekey.geometry.camera import CalibrationError, CameraModel
 
 __all__ = ["load_calibration", "write_calibration"]
 

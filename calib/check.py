@@ -18,7 +18,7 @@ import numpy as np
 from dronekey.calib.calibrate import reprojection_rms
 from dronekey.calib.errors import CalibInputError
 from dronekey.calib.views import BoardView
-from dronekey.camera import CalibrationError, CameraModel
+from dronekey.geometry.camera import CalibrationError, CameraModel
 
 __all__ = ["CheckResult", "check_views"]
 

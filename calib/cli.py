@@ -105,7 +105,7 @@ def _calibrate_parser() -> argparse.ArgumentParser:
     parser = _OneLineParser(
         prog=PROG,
         description="Calibrate a camera from pictures of a printed board: writes the intrinsics YAML the "
-        "daemon reads (OpenCV FileStorage, DESIGN.md §5.2), a coverage image next to it, and advice. "
+        "daemon reads (OpenCV FileStorage, docs/design.md §5.2), a coverage image next to it, and advice. "
         f"To check a calibration against other pictures: {PROG} check --help.",
         epilog="Exit status: 0 done, 1 bad input (one line on stderr), 2 bad command line.",
     )

@@ -16,7 +16,7 @@ class BoardView:
     Attributes
     ----------
     image_points : (N, 2) float32
-        Pixel coordinates (origin at the top-left pixel's centre, DESIGN.md §4).
+        Pixel coordinates (origin at the top-left pixel's centre, docs/design.md §4).
     object_points : (N, 3) float32
         The same points in the board frame (z = 0), metres.
     """

@@ -21,7 +21,6 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any, Protocol
 
-from dronekey.camera import CameraModel
 from dronekey.daemon.calibration import camera_at_resolution, resolve_calibration
 from dronekey.daemon.config import DaemonConfig
 from dronekey.daemon.errors import ExitCode, UsageError
@@ -40,6 +39,7 @@ from dronekey.daemon.status import (
     status_summary,
 )
 from dronekey.daemon.systemd import SystemdNotifier
+from dronekey.geometry.camera import CameraModel
 from dronekey.types import Frame, TrackStatus
 
 __all__ = ["DaemonApp", "PipelineFactory", "default_pipeline_factory"]

@@ -1,16 +1,16 @@
 """Which intrinsics the daemon uses: ``--calib``, else what travels with the source, else stop.
 
 The intrinsics are then scaled to the resolution the source actually delivers (same aspect ratio
-only; another aspect ratio is refused, DESIGN.md §5.2).
+only; another aspect ratio is refused, docs/design.md §5.2).
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from dronekey.camera import CalibrationError, CameraModel
 from dronekey.daemon.errors import UsageError
 from dronekey.daemon.sources import FrameReader, SourceOpenError
+from dronekey.geometry.camera import CalibrationError, CameraModel
 
 __all__ = ["NO_CALIBRATION_HINT", "camera_at_resolution", "resolve_calibration"]
 

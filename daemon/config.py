@@ -169,7 +169,7 @@ class ModelConfig(_Section):
     @field_validator("drone")
     @classmethod
     def _known_drone(cls, v: str) -> str:
-        from dronekey.drone_spec import available_specs
+        from dronekey.geometry.drone_spec import available_specs
 
         if v.endswith((".yaml", ".yml")):
             if not Path(v).is_file():
@@ -212,7 +212,7 @@ def _pem_file(path: Path, marker: str, what: str) -> Path:
 
 
 class ZenohConfig(_Section):
-    """Zenoh session (DESIGN.md §6.1); on its defaults reachable from this machine only."""
+    """Zenoh session (docs/design.md §6.1); on its defaults reachable from this machine only."""
 
     enabled: bool = True
     mode: Literal["peer", "client"] = "peer"
@@ -245,7 +245,7 @@ class ZenohConfig(_Section):
 
 
 class MavlinkConfig(_Section):
-    """MAVLink 2 output (DESIGN.md §6.2)."""
+    """MAVLink 2 output (docs/design.md §6.2)."""
 
     enabled: bool = True
     url: str = Field(
@@ -265,14 +265,14 @@ class MavlinkConfig(_Section):
     @field_validator("url")
     @classmethod
     def _url(cls, v: str) -> str:
-        from dronekey.daemon.mavlink.link import validate_url  # no pymavlink import
+        from dronekey.daemon.sinks.mavlink.link import validate_url  # no pymavlink import
 
         return validate_url(v)  # also spells out 127.0.0.1 for a listening URL without a host
 
     @field_validator("allow")
     @classmethod
     def _allow(cls, v: list[str]) -> list[str]:
-        from dronekey.daemon.mavlink.peers import parse_allow_entry
+        from dronekey.daemon.sinks.mavlink.peers import parse_allow_entry
 
         for entry in v:
             parse_allow_entry(entry)
@@ -311,7 +311,7 @@ class Sbs1Config(_Section):
 
 
 class McapConfig(_Section):
-    """MCAP log (DESIGN.md §6.3); the keys are ``McapSink``'s parameters."""
+    """MCAP log (docs/design.md §6.3); the keys are ``McapSink``'s parameters."""
 
     enabled: bool = True
     dir: Path | None = Field(None, description="log folder; null: $STATE_DIRECTORY/mcap or ./mcap")

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dronekey.rotations import ned_from_camera
+from dronekey.geometry.rotations import ned_from_camera
 
 __all__ = ["CameraGeo", "GeoError"]
 

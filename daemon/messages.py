@@ -2,9 +2,9 @@
 
 One builder per message, shared by every output that speaks JSON (Zenoh and MCAP), so the same
 bytes reach both. The JSON schemas (draft 2020-12) ship in ``dronekey.daemon/schemas/`` and are the
-contract (DESIGN.md §6.1); ``load_schema`` reads them.
+contract (docs/design.md §6.1); ``load_schema`` reads them.
 
-Frames and units follow DESIGN.md §4: camera frame x right, y down, z forward (metres); quaternions
+Frames and units follow docs/design.md §4: camera frame x right, y down, z forward (metres); quaternions
 (w, x, y, z) body -> camera; pixels of the full source frame. Non-finite numbers (NaN, inf) are
 sent as ``null`` and ``to_json_bytes`` refuses to emit anything that is not strict JSON.
 """
@@ -27,9 +27,9 @@ import dronekey
 from dronekey.types import Track, TrackStatus
 
 if TYPE_CHECKING:
-    from dronekey.camera import CameraModel
     from dronekey.daemon.geo import CameraGeo
     from dronekey.daemon.sinks.base import SinkWorker
+    from dronekey.geometry.camera import CameraModel
 
 __all__ = [
     "SCHEMA_NAMES",
@@ -83,7 +83,7 @@ def check_camera_id(camera_id: str) -> str:
 
 
 def key_expressions(camera_id: str) -> dict[str, str]:
-    """The Zenoh key expressions of one camera (DESIGN.md §6.1)."""
+    """The Zenoh key expressions of one camera (docs/design.md §6.1)."""
     base = f"dronekey/{check_camera_id(camera_id)}"
     return {name: f"{base}/{name}" for name in ("tracks", "status", "alive", "info")}
 

@@ -15,10 +15,10 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from dronekey.camera import CameraModel
 from dronekey.daemon.config import DaemonConfig
 from dronekey.daemon.errors import UsageError
 from dronekey.daemon.sinks.base import Sink, SinkWorker
+from dronekey.geometry.camera import CameraModel
 
 __all__ = ["OutputContext", "build_outputs", "close_outputs"]
 
@@ -61,7 +61,7 @@ def _zenoh(config: DaemonConfig, ctx: OutputContext) -> Sink:
 
 
 def _mavlink(config: DaemonConfig, ctx: OutputContext) -> Sink:
-    from dronekey.daemon.mavlink import MavlinkSink
+    from dronekey.daemon.sinks.mavlink import MavlinkSink
 
     m = config.mavlink
     return MavlinkSink(
@@ -76,7 +76,7 @@ def _mavlink(config: DaemonConfig, ctx: OutputContext) -> Sink:
 
 
 def _mcap(config: DaemonConfig, ctx: OutputContext) -> Sink:
-    from dronekey.daemon.sinks.mcap_sink import McapSink
+    from dronekey.daemon.sinks.mcap.sink import McapSink
 
     m = config.mcap
     return McapSink(

@@ -1,5 +1,5 @@
 """One frame in, track updates out: the localiser, keypoint model, pose estimator and tracker glued
-together exactly once, for the evaluation and the daemon alike (DESIGN.md §3).
+together exactly once, for the evaluation and the daemon alike (docs/design.md §3).
 
     Frame --Localizer--> KeypointDetection --plausibility--> --PoseEstimator--> PoseMeasurement
           --Tracker--> Tracks
@@ -11,7 +11,7 @@ and picks between the two IPPE solutions. When no confirmed track was measured t
 every ``search_every`` frames regardless, the localiser searches the whole frame; every candidate
 that holds a drone becomes a measurement of its own, so each starts a tentative hypothesis and
 only the ones whose evidence holds are confirmed. Every detection must pass the plausibility gate
-(``dronekey.plausibility``) before its pose reaches the tracker.
+(``dronekey.perception.plausibility``) before its pose reaches the tracker.
 """
 
 from __future__ import annotations
@@ -23,15 +23,21 @@ from pathlib import Path
 
 import numpy as np
 
-from dronekey.camera import CalibrationError, CameraModel
-from dronekey.crop import CropPolicy
-from dronekey.drone_spec import DroneSpec, load_spec
-from dronekey.keypoint_order import KeypointOrder
-from dronekey.localizer import Localizer, LocalizerConfig, box_from_keypoints, box_from_pose, box_overlap
-from dronekey.plausibility import PlausibilityConfig, check_detection, check_pose
-from dronekey.pose import PoseEstimator, PoseRejection
-from dronekey.runtime import HEADING_TWIN, KeypointModel
-from dronekey.tracker import Tracker, TrackerConfig, TrackPrediction
+from dronekey.geometry.camera import CalibrationError, CameraModel
+from dronekey.geometry.crop import CropPolicy
+from dronekey.geometry.drone_spec import DroneSpec, load_spec
+from dronekey.perception.keypoint_model import HEADING_TWIN, KeypointModel
+from dronekey.perception.keypoint_order import KeypointOrder
+from dronekey.perception.localizer import (
+    Localizer,
+    LocalizerConfig,
+    box_from_keypoints,
+    box_from_pose,
+    box_overlap,
+)
+from dronekey.perception.plausibility import PlausibilityConfig, check_detection, check_pose
+from dronekey.perception.pose import PoseEstimator, PoseRejection
+from dronekey.tracking.tracker import Tracker, TrackerConfig, TrackPrediction
 from dronekey.types import Frame, KeypointDetection, PoseMeasurement, Track, TrackStatus
 
 __all__ = ["Measured", "PipelineOutput", "PoseTracker", "TrackingPipeline"]
@@ -130,7 +136,7 @@ class PoseTracker:
     ) -> KeypointDetection:
         """The detection turned to the prior's front (the heading twin, with its front/back
         probability), then with the other order flips undone when the track's history trusts it
-        (``dronekey.keypoint_order``); unchanged without a prior."""
+        (``dronekey.perception.keypoint_order``); unchanged without a prior."""
         if prior is None:
             return detection
         predicted = self.camera.project_body(self.spec.keypoints_3d, *prior)

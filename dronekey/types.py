@@ -1,4 +1,4 @@
-"""Data passed along the frame flow of DESIGN.md §3: Source -> Localizer -> KeypointModel ->
+"""Data passed along the frame flow of docs/design.md §3: Source -> Localizer -> KeypointModel ->
 PoseEstimator -> Tracker -> Sinks. Plain dataclasses with units and frames in the field docs.
 """
 
@@ -34,7 +34,7 @@ class KeypointDetection:
         top-left pixel).
     presence : probability in [0, 1] that the crop holds a drone.
     roi : (x0, y0, side) of the square crop in full-frame pixels: column and row of its top-left
-        pixel and its side, integers (see ``dronekey.crop``).
+        pixel and its side, integers (see ``dronekey.geometry.crop``).
     heading_p : probability in [0.5, 1] the network gives to ``keypoints_px`` being in the spec's
         order rather than its 180-degree twin (front and back exchanged); NaN for a model without a
         front/back head. ``heading_confidence`` is 2 p - 1: 0 a coin flip, 1 certain.

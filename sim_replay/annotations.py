@@ -1,4 +1,4 @@
-"""Typed ground truth of a sequence (DESIGN.md §5.1): one record per frame, the drone's keypoints
+"""Typed ground truth of a sequence (docs/design.md §5.1): one record per frame, the drone's keypoints
 and 6DoF pose when it is visible.
 
 The JSON reader and writer for this layout (ours and the real 2DroneKey / 3DronePose COCO files)
@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dronekey.camera import CameraModel
+from dronekey.geometry.camera import CameraModel
 
 __all__ = ["HIDDEN", "UNLABELLED", "VISIBLE", "DroneAnnotation", "FrameRecord", "SequenceAnnotations"]
 
@@ -49,7 +49,7 @@ class DroneAnnotation:
 
     @property
     def area(self) -> float:
-        """COCO area of the instance: the box area in pixels^2 (OKS scale, DESIGN.md §4)."""
+        """COCO area of the instance: the box area in pixels^2 (OKS scale, docs/design.md §4)."""
         return float(self.bbox_xywh[2] * self.bbox_xywh[3])
 
 

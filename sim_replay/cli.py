@@ -21,8 +21,8 @@ from typing import NoReturn
 import numpy as np
 from tqdm import tqdm
 
-from dronekey.camera import CalibrationError
-from dronekey.drone_spec import DroneSpecError
+from dronekey.geometry.camera import CalibrationError
+from dronekey.geometry.drone_spec import DroneSpecError
 from dronekey.sim_replay.frames import FrameSourceError, iter_frames
 from dronekey.sim_replay.presets import BACKGROUND_KINDS, FLIGHT_MODELS, LED_MODES, PRESETS, build_sequence
 from dronekey.sim_replay.sequence_io import (

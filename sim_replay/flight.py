@@ -9,7 +9,7 @@ scripted positions and replaces the attitude by the one a real quadcopter would 
 Frames and units: positions ``p`` are local North-East-Down (NED) metres, time in seconds, the body
 frame is FRD (x forward, y right, z down) and ``R_ned_body`` maps body vectors to NED. Angles are
 the aerospace intrinsic z-y'-x'' Euler angles (yaw, pitch, roll) in degrees, as
-``dronekey.rotations.rotation_from_euler_deg`` takes them: yaw 0 faces north and 90 east, positive
+``dronekey.geometry.rotations.rotation_from_euler_deg`` takes them: yaw 0 faces north and 90 east, positive
 pitch raises the nose, positive roll lowers the right side.
 
 The maths

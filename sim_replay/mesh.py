@@ -21,7 +21,7 @@ from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 
-from dronekey.drone_spec import DroneSpec
+from dronekey.geometry.drone_spec import DroneSpec
 
 __all__ = [
     "GIMBAL_PLACES",

@@ -42,9 +42,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from dronekey.camera import CameraModel
-from dronekey.drone_spec import DroneSpec, load_spec
-from dronekey.rotations import ned_from_camera, rotation_from_euler_deg
+from dronekey.geometry.camera import CameraModel
+from dronekey.geometry.drone_spec import DroneSpec, load_spec
+from dronekey.geometry.rotations import ned_from_camera, rotation_from_euler_deg
 
 from .annotations import FrameRecord
 from .backgrounds import HELD_OUT_PHOTOS, BackgroundSource, packaged_photos
@@ -458,7 +458,7 @@ class SyntheticSequence:
 
     @property
     def info(self) -> dict:
-        """The JSON's ``info`` object (DESIGN.md §5.1) with the conditions it was rendered under."""
+        """The JSON's ``info`` object (docs/design.md §5.1) with the conditions it was rendered under."""
         c = self.conditions
         return {
             "sequence": self.name,

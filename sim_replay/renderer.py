@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from dronekey.camera import CameraModel
+from dronekey.geometry.camera import CameraModel
 
 from .annotations import HIDDEN, VISIBLE, DroneAnnotation
 from .mesh import EMISSIVE, PROP, DroneMesh, DroneStyle, segment_hits

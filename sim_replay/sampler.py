@@ -2,7 +2,7 @@
 
 Each sample imitates what the daemon's localiser hands the keypoint network: a drone somewhere in a
 1080p frame (30 to 600 px across, any attitude, partly outside the frame at times), cropped around
-its box with ``dronekey.crop.CropPolicy``'s scale and jitter, and resized to the network input.
+its box with ``dronekey.geometry.crop.CropPolicy``'s scale and jitter, and resized to the network input.
 Instead of rendering the whole 1080p frame, the drone is rendered straight into the crop through an
 equivalent camera (the full camera's intrinsics shifted and scaled to the crop), at the crop's
 native resolution capped at twice the input size; background, blur and noise are applied at that
@@ -29,11 +29,11 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from dronekey.camera import CameraModel
-from dronekey.crop import CropPolicy, crop_square, to_normalised
-from dronekey.drone_spec import load_spec
-from dronekey.localizer import LocalizerConfig, propose_rois
-from dronekey.rotations import ned_from_camera, rotation_from_euler_deg
+from dronekey.geometry.camera import CameraModel
+from dronekey.geometry.crop import CropPolicy, crop_square, to_normalised
+from dronekey.geometry.drone_spec import load_spec
+from dronekey.geometry.rotations import ned_from_camera, rotation_from_euler_deg
+from dronekey.perception.localizer import LocalizerConfig, propose_rois
 
 from .annotations import HIDDEN
 from .backgrounds import TRAIN_PHOTOS, BackgroundSource, packaged_photos

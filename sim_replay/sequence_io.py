@@ -1,4 +1,4 @@
-"""Read and write sequence annotation JSON: our 3DronePose-style files (DESIGN.md §5.1) and the real
+"""Read and write sequence annotation JSON: our 3DronePose-style files (docs/design.md §5.1) and the real
 2DroneKey / 3DronePose COCO keypoint files.
 
 Writing produces exactly the §5.1 layout, byte-for-byte reproducible (no clocks, hosts or paths),
@@ -37,8 +37,8 @@ from typing import Any, NoReturn
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from dronekey.camera import CalibrationError, CameraModel
-from dronekey.drone_spec import available_specs, load_spec
+from dronekey.geometry.camera import CalibrationError, CameraModel
+from dronekey.geometry.drone_spec import available_specs, load_spec
 from dronekey.sim_replay.annotations import DroneAnnotation, FrameRecord, SequenceAnnotations
 
 __all__ = [
@@ -818,7 +818,7 @@ def load_sequence(
     fps: float | None = None,
     pose_encoding: CocoPoseEncoding | None = None,
 ) -> SequenceAnnotations:
-    """Read a sequence JSON: ours (DESIGN.md §5.1) or a real 2DroneKey / 3DronePose COCO file.
+    """Read a sequence JSON: ours (docs/design.md §5.1) or a real 2DroneKey / 3DronePose COCO file.
 
     Parameters
     ----------
@@ -835,7 +835,7 @@ def load_sequence(
         The JSON file does not exist.
     SequenceFormatError
         The file is malformed or cannot be mapped (the message names the key path and value).
-    dronekey.camera.CalibrationError, dronekey.drone_spec.DroneSpecError
+    dronekey.geometry.camera.CalibrationError, dronekey.geometry.drone_spec.DroneSpecError
         The ``camera`` / ``drone`` argument is unusable.
     """
     path = Path(path)

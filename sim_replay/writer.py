@@ -1,5 +1,5 @@
 """Write a rendered sequence to disk: ``DIR/<name>.mp4`` (or the frame folder ``DIR/<name>/``),
-``DIR/<name>.json`` (DESIGN.md §5.1) and ``DIR/camera.yaml`` (§5.2).
+``DIR/<name>.json`` (docs/design.md §5.1) and ``DIR/camera.yaml`` (§5.2).
 
 Everything is written under temporary names (``DIR/.<name>.partial-<pid>...``) and renamed into
 place only after the last frame, media first and the JSON last, so an interrupted or failed run
@@ -30,8 +30,8 @@ from typing import Protocol
 import cv2
 import numpy as np
 
-from dronekey.camera import CalibrationError, CameraModel
-from dronekey.drone_spec import DroneSpec
+from dronekey.geometry.camera import CalibrationError, CameraModel
+from dronekey.geometry.drone_spec import DroneSpec
 from dronekey.sim_replay.annotations import FrameRecord, SequenceAnnotations
 from dronekey.sim_replay.sequence_io import dumps_sequence
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from dronekey.daemon.mavlink import MavlinkSink, load_dialect
+from dronekey.daemon.sinks.mavlink import MavlinkSink, load_dialect
 
 # The daemon's MAVLink identity in the MAVLink tests (the config's defaults).
 SYSID, COMPID = 42, 191

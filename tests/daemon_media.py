@@ -123,7 +123,7 @@ def serve(port: int) -> None:
 
 
 def write_untrained_model(path: Path, input_size: int = 64) -> Path:
-    """An ONNX file with the keypoint model's contract (dronekey.export) that never sees a drone.
+    """An ONNX file with the keypoint model's contract (dronekey.training.export) that never sees a drone.
 
     The daemon tests that are about the service (signals, sd_notify, sources, exit codes) run the
     real pipeline and ONNX Runtime with it, independently of the trained model: ``presence`` is 0,
@@ -188,7 +188,7 @@ def write_untrained_model(path: Path, input_size: int = 64) -> Path:
 def daemon_assets(folder: Path, width: int = 640, height: int = 480) -> Path:
     """What a daemon run in a test needs, in ``folder``: a 30-frame H.264 ``clip.mp4``, a matching
     ``camera.yaml`` (60 deg horizontal field of view) and an ``untrained.onnx`` model."""
-    from dronekey.camera import CameraModel
+    from dronekey.geometry.camera import CameraModel
 
     encode_clip(folder / "clip.mp4", "libx264", frames=30)
     CameraModel.from_fov(width, height, 60).save_yaml(folder / "camera.yaml")

@@ -2,7 +2,7 @@
 
 The pipeline thread hands each ``FrameUpdate`` to every ``SinkWorker``; a worker queues it (bounded,
 dropping the oldest when full) and its own thread calls the sink. A slow, blocked or absent
-consumer therefore never stalls tracking (DESIGN.md §3), and each worker counts what it dropped,
+consumer therefore never stalls tracking (docs/design.md §3), and each worker counts what it dropped,
 its queue depth and its frame-to-publish latency for the status messages.
 """
 

@@ -2,7 +2,7 @@
 
 QGroundControl draws ADSB_VEHICLE only from the vehicle it is connected to, so a ground-based
 sensor also serves the BaseStation text format (the one ``dump1090 --net`` serves on port 30003),
-which QGroundControl's "ADSB server" input and common ADS-B tools read (DESIGN.md §6.2).
+which QGroundControl's "ADSB server" input and common ADS-B tools read (docs/design.md §6.2).
 
 Per published track update, CRLF-terminated lines of 22 comma-separated fields:
 
@@ -11,7 +11,7 @@ Per published track update, CRLF-terminated lines of 22 comma-separated fields:
   drone hovers) and vertical rate in ft/min;
 - ``MSG,1`` identification: the callsign, when a track first appears and every ``callsign_period_s``.
 
-Address and callsign are those of MAVLink's ADSB_VEHICLE (``dronekey.daemon.mavlink.target_state``);
+Address and callsign are those of MAVLink's ADSB_VEHICLE (``dronekey.daemon.sinks.target_state``);
 dates and times are UTC. Altitude is in the datum of ``--camera-geo`` (see ``target_state``).
 
 Needs the camera's geodetic pose: without it there is no latitude or longitude to send, and the
@@ -41,8 +41,9 @@ import time
 from collections.abc import Iterable
 
 from dronekey.daemon.geo import CameraGeo
-from dronekey.daemon.mavlink.messages import unix_time_us
-from dronekey.daemon.mavlink.target_state import (
+from dronekey.daemon.sinks.base import FrameUpdate, Sink
+from dronekey.daemon.sinks.mavlink.messages import unix_time_us
+from dronekey.daemon.sinks.target_state import (
     DEFAULT_ICAO_BASE,
     PUBLISHED_STATUSES,
     TargetGeodetic,
@@ -52,7 +53,6 @@ from dronekey.daemon.mavlink.target_state import (
     validate_icao_base,
     validate_statuses,
 )
-from dronekey.daemon.sinks.base import FrameUpdate, Sink
 from dronekey.types import TrackStatus
 
 __all__ = ["Sbs1Sink", "is_loopback", "parse_listen_address", "sbs1_lines"]

@@ -1,4 +1,4 @@
-"""Zenoh output (DESIGN.md §6.1): track updates, status, a liveliness token and an info queryable.
+"""Zenoh output (docs/design.md §6.1): track updates, status, a liveliness token and an info queryable.
 
 Key expressions, for camera id ``<id>``:
 

@@ -13,7 +13,7 @@ from enum import StrEnum
 
 import numpy as np
 
-from dronekey.camera import CameraModel
+from dronekey.geometry.camera import CameraModel
 from dronekey.types import Frame
 
 __all__ = ["CapturedFrame", "FrameReader", "ReadResult", "SourceOpenError", "SourceState", "valid_bgr"]

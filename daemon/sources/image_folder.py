@@ -13,9 +13,9 @@ from pathlib import Path
 
 import cv2
 
-from dronekey.camera import CameraModel
 from dronekey.daemon.sources.base import FrameReader, ReadResult, SourceOpenError, valid_bgr
 from dronekey.daemon.sources.sidecar import sidecar_camera
+from dronekey.geometry.camera import CameraModel
 
 __all__ = ["IMAGE_SUFFIXES", "ImageFolderReader"]
 

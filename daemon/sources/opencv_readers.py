@@ -5,7 +5,7 @@ and stamped with the stream's presentation time (``CAP_PROP_POS_MSEC``). Network
 http, tcp, udp) use the same backend with open and read timeouts, so a dead link returns control
 to the capture thread, which reconnects. V4L2 devices get the configured size, pixel format and
 rate and say so when the driver picks something else. Live frames are stamped with the Unix time
-at which they were read (DESIGN.md §4).
+at which they were read (docs/design.md §4).
 
 FFmpeg decodes files and streams on ``decode_threads`` threads, by default every core but one: the
 pipeline thread (one ONNX Runtime thread, see ``model.threads``) keeps a core of its own instead of
@@ -23,11 +23,11 @@ from urllib.parse import urlsplit, urlunsplit
 import cv2
 import numpy as np
 
-from dronekey.camera import CameraModel
 from dronekey.daemon.config import NetworkSettings, V4l2Settings
 from dronekey.daemon.sources.base import FrameReader, ReadResult, SourceOpenError, valid_bgr
 from dronekey.daemon.sources.sidecar import sidecar_camera
 from dronekey.daemon.sources.truncation import truncation
+from dronekey.geometry.camera import CameraModel
 
 __all__ = [
     "NetworkStreamReader",

@@ -2,7 +2,7 @@
 
 Looked up in this order for ``DIR/NAME.ext`` (or the folder ``DIR/NAME``):
 
-1. ``DIR/NAME.json``: a sequence JSON (DESIGN.md §5.1) whose ``camera`` object holds the intrinsics,
+1. ``DIR/NAME.json``: a sequence JSON (docs/design.md §5.1) whose ``camera`` object holds the intrinsics,
    read with ``sim_replay.sequence_io.load_sequence``;
 2. ``DIR/NAME/camera.yaml`` (folders only), then ``DIR/camera.yaml``: an OpenCV calibration YAML.
 """
@@ -12,8 +12,8 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
-from dronekey.camera import CalibrationError, CameraModel
 from dronekey.daemon.errors import UsageError
+from dronekey.geometry.camera import CalibrationError, CameraModel
 
 __all__ = ["sidecar_camera"]
 

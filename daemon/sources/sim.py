@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import logging
 
-from dronekey.camera import CameraModel
 from dronekey.daemon.config import SimSettings
 from dronekey.daemon.sources.base import FrameReader, ReadResult, SourceOpenError, valid_bgr
+from dronekey.geometry.camera import CameraModel
 
 __all__ = ["SimReader"]
 

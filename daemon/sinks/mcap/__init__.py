@@ -1,0 +1,1 @@
+"""The MCAP log: the sink (``sink``) and the Foxglove messages it writes (``foxglove``)."""

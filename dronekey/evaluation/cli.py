@@ -1,0 +1,301 @@
+"""``dronekey-eval``: measure the keypoint model and the 6DoF pipeline.
+
+    dronekey-eval keypoints --preset 2dronekey --frames N --seed S [--model FILE] [--json]
+    dronekey-eval pose --sequence DIR/seq13.json [--video FILE] [--model FILE] [--plot FILE.png] [--json]
+    dronekey-eval pose --all DIR [--json]            # seq11-13 in DIR, the paper's Tab. VI
+    dronekey-eval pose ... --oracle-noise PX         # ground-truth keypoints + noise: PnP and filter only
+    dronekey-eval robustness --out DIR [--json] [--frames N] [--seeds N ...] [--tuning] [--quick]
+                                                     # LEDs x backgrounds x motions, far drones, drone-free
+
+Figures are percentages (keypoints) and degrees / metres (pose), as in the paper.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+from pathlib import Path
+
+log = logging.getLogger("dronekey.eval")
+
+EXIT_BAD_INPUT = 2
+
+
+class _UsageError(Exception):
+    """Bad input the user can fix; printed as one line."""
+
+
+def _cmd_keypoints(args: argparse.Namespace) -> int:
+    from dronekey.evaluation.keypoints import evaluate_keypoints
+    from dronekey.sim_replay.presets import PRESETS
+
+    if args.preset not in PRESETS:
+        raise _UsageError(f"unknown preset {args.preset!r}; available: {', '.join(PRESETS)}")
+    if args.frames <= 0:
+        raise _UsageError(f"--frames must be positive, got {args.frames}")
+    result = evaluate_keypoints(
+        args.preset,
+        args.frames,
+        args.seed,
+        args.model,
+        progress=sys.stderr.isatty(),
+        mirror_average=not args.no_mirror_average,
+    )
+    if args.json:
+        print(json.dumps(result))
+    else:
+        print(
+            f"{result['frames']} frames of {args.preset} (seed {args.seed}): AP^kp {result['ap_kp']:.2f}  "
+            f"SR90 {result['sr90']:.2f}  SR95 {result['sr95']:.2f}  presence AUC {result['presence_auc']}  "
+            f"median error {result['median_err_px']:.2f} px  front/back swaps {result['swap_rate']:.2f}%"
+        )
+    return 0
+
+
+def _load(json_path: Path, video: str | None):
+    from dronekey.sim_replay.frames import iter_frames
+    from dronekey.sim_replay.sequence_io import load_sequence
+
+    if not json_path.is_file():
+        raise _UsageError(f"sequence file not found: {json_path}")
+    seq = load_sequence(json_path)
+    return seq, iter_frames(seq, video)
+
+
+def _cmd_pose(args: argparse.Namespace) -> int:
+    from dronekey.evaluation.pose import evaluate_sequence, plot_sequence, table_vi, weighted_average
+
+    if (args.sequence is None) == (args.all is None):
+        raise _UsageError("give exactly one of --sequence FILE.json or --all DIR")
+    if args.oracle_noise is not None and args.oracle_noise < 0:
+        raise _UsageError(f"--oracle-noise must be >= 0 px, got {args.oracle_noise}")
+    if args.plot:
+        if args.sequence is None:
+            raise _UsageError("--plot draws one sequence: use it with --sequence")
+        try:
+            import matplotlib  # noqa: F401  (checked before a long run, not after it)
+        except ImportError:
+            raise _UsageError("--plot needs matplotlib: pip install 'dronekey[plot]'") from None
+    if args.sequence is not None:
+        paths = [Path(args.sequence)]
+    else:
+        folder = Path(args.all)
+        if not folder.is_dir():
+            raise _UsageError(f"--all folder not found: {folder}")
+        paths = [folder / f"seq{n}.json" for n in (11, 12, 13)]
+        missing = [p.name for p in paths if not p.is_file()]
+        if missing:
+            raise _UsageError(
+                f"{folder} lacks {', '.join(missing)}; render them with: "
+                f"for s in seq11 seq12 seq13; do dronekey-sim --preset $s --seed 101 --out {folder}; done"
+            )
+    results = []
+    for path in paths:
+        seq, frames = _load(path, args.video if args.sequence else None)
+        res = evaluate_sequence(
+            seq,
+            frames,
+            args.model,
+            args.oracle_noise,
+            progress=sys.stderr.isatty(),
+            mirror_average=not args.no_mirror_average,
+        )
+        results.append(res)
+        if args.plot:
+            plot_sequence(res, args.plot)
+    if args.sequence:
+        out = results[0].to_dict()
+        if args.oracle_noise is not None:
+            out["oracle_noise_px"] = args.oracle_noise
+        if args.json:
+            print(json.dumps(out))
+        else:
+            print(table_vi(results))
+            print(f"AP^kp {out['ap_kp']}  SR90 {out['sr90']}  SR95 {out['sr95']}  {out['fps']} fps")
+        return 0
+    if args.json:
+        avg = {}
+        for key, attr in (
+            ("mae_angle_deg", "mae_angle_deg"),
+            ("rmse_m", "rmse_m"),
+            ("mae_abs_m", "mae_abs_m"),
+        ):
+            for kind in ("filtered", "raw"):
+                errs = [getattr(getattr(r, kind), attr) for r in results]
+                weights = [getattr(r, kind).frames for r in results]
+                avg.setdefault(kind, {})[key] = round(weighted_average(errs, weights, rms=key == "rmse_m"), 4)
+        print(json.dumps({"sequences": [r.to_dict() for r in results], "average": avg}))
+    else:
+        print(table_vi(results))
+    return 0
+
+
+def _parse_size(text: str) -> tuple[int, int]:
+    """``WIDTHxHEIGHT`` (pixels) of ``--size``."""
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise _UsageError(f"--size must be WIDTHxHEIGHT in pixels (e.g. 1920x1080), got {text!r}") from None
+    if w <= 0 or h <= 0:
+        raise _UsageError(f"--size must be positive, got {text!r}")
+    return w, h
+
+
+def _cmd_robustness(args: argparse.Namespace) -> int:
+    from dronekey.evaluation import robustness as rb
+
+    frames = (
+        args.frames if args.frames is not None else (rb.QUICK_FRAMES if args.quick else rb.DEFAULT_FRAMES)
+    )
+    if frames <= 0:
+        raise _UsageError(f"--frames must be positive, got {frames}")
+    if args.seeds is not None:
+        negative = [s for s in args.seeds if s < 0]
+        if negative:
+            raise _UsageError(f"--seeds must be >= 0, got {negative[0]}")
+    width, height = _parse_size(args.size)
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise _UsageError(f"--out must be a folder, got the file {out}")
+    if args.model is not None and not Path(args.model).is_file():
+        raise _UsageError(f"--model not found: {args.model}")
+    try:
+        report = rb.run_robustness(
+            out,
+            frames=frames,
+            seeds=args.seeds,
+            tuning=args.tuning,
+            model_path=args.model,
+            backgrounds=rb.QUICK_BACKGROUNDS if args.quick else rb.BACKGROUNDS,
+            drone_free=rb.QUICK_DRONE_FREE if args.quick else rb.DRONE_FREE_SEQUENCES,
+            width=width,
+            height=height,
+            mirror_average=not args.no_mirror_average,
+            progress=sys.stderr.isatty(),
+        )
+    except ImportError as exc:  # --background photos without scikit-image / scikit-learn
+        raise _UsageError(str(exc)) from None
+    print(json.dumps(report.to_dict()) if args.json else report.table())
+    return 0
+
+
+_ROBUSTNESS_HELP = """\
+Render a fixed matrix of sequences into --out (reused on a rerun when their JSON info, frame count
+and size match), run the daemon's pipeline over each and print one table.
+
+matrix (dronekey.evaluation.robustness):
+  drone sequences   LEDs red-front, green-front, off, random
+                    x backgrounds sky (procedural skies), photos (held-out packaged photographs,
+                      never used in training; needs scikit-image or scikit-learn), urban
+                    x motions seq11, seq12, seq13 (the paper's Tab. I), scripted attitudes;
+                    one motion of every (LED, background) cell 2.5x as far (about 35-60 px across)
+  drone-free        20 sequences (birds, flying objects, clouds, edge clutter) over the same scenes
+  --frames frames each (150: 5,400 drone frames + 3,000 drone-free); --quick: sky only, 40
+  frames, 5 drone-free sequences (a smoke test, not a figure)
+
+seeds: reporting scene seeds 7001+ (drone-free 7501+), tuning seeds 6001+ (drone-free 6501+,
+  --tuning); style seed = scene seed + 10000. Training uses the sampler's streams (seeds 0, 1, ...),
+  its validation seed 7919; the two sets are kept apart and neither may hold 7919.
+
+metrics per row (frames pooled): MAE-angle (deg), RMSE (m), MAE-absolute (m) of the drone's track
+  (the best published track within max(0.5 m, 25 % of the range) of the truth), detected % (frames
+  with such a track), AP^kp of the pipeline's detections (%), frames with a false track (a
+  published track that is not the drone's) per 1,000 frames and their distinct ids, and wrong
+  heading % (the drone's track > 90 deg off while heading_confidence >= 0.5).
+"""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="dronekey-eval",
+        description=__doc__.split("\n\n")[0],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=__doc__.split("\n\n", 1)[1],
+    )
+    p.add_argument("--log-level", default="WARNING", help="logging level (DEBUG, INFO, WARNING)")
+    sub = p.add_subparsers(dest="command", required=True)
+    k = sub.add_parser(
+        "keypoints",
+        help="AP^kp, SR90, SR95 and presence AUC on freshly rendered frames",
+        description="Render FRAMES fresh frames, crop around each drone as the localiser does (the "
+        "model's jitter and scale policy), run the ONNX model and score its keypoints in full-frame "
+        "pixels: AP^kp, SR90, SR95 (percent) and the presence AUC (drone-free crops included).",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    k.add_argument("--preset", default="2dronekey", help="sim_replay preset to render")
+    k.add_argument("--frames", type=int, default=200, help="frames to render")
+    k.add_argument("--seed", type=int, default=1234, help="render seed (use one never used in training)")
+    k.add_argument("--model", default=None, help="ONNX model (default: the shipped one)")
+    k.add_argument(
+        "--no-mirror-average",
+        action="store_true",
+        help="run each crop once (the daemon also runs its mirror and averages, model.mirror_average)",
+    )
+    k.add_argument("--json", action="store_true", help="print one JSON object")
+    k.set_defaults(func=_cmd_keypoints)
+    q = sub.add_parser(
+        "pose",
+        help="6DoF errors of the pipeline on sequences (paper Tab. VI)",
+        description="Run the daemon's pipeline over rendered sequences and compare its 6DoF tracks "
+        "with the ground truth: MAE-angle, RMSE, MAE-absolute, filtered and raw PnP. --sequence for "
+        "one file (with --plot), --all for the paper's Tab. VI over seq11-13.",
+    )
+    q.add_argument("--sequence", help="sequence JSON (docs/design.md §5.1)")
+    q.add_argument("--all", help="folder holding seq11.json, seq12.json, seq13.json and their videos")
+    q.add_argument("--video", help="video or image folder (default: from the JSON's file names)")
+    q.add_argument("--model", default=None, help="ONNX model (default: the shipped one)")
+    q.add_argument("--plot", help="write a PNG of ground truth against the estimate (with --sequence)")
+    q.add_argument(
+        "--oracle-noise", type=float, help="use ground-truth keypoints plus this Gaussian noise (px)"
+    )
+    q.add_argument(
+        "--no-mirror-average", action="store_true", help="run each crop once (the daemon's default averages)"
+    )
+    q.add_argument("--json", action="store_true", help="print one JSON object")
+    q.set_defaults(func=_cmd_pose)
+    r = sub.add_parser(
+        "robustness",
+        help="the pipeline under LED, background, motion and range changes, and on drone-free sequences",
+        description=_ROBUSTNESS_HELP,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    r.add_argument("--out", required=True, help="folder for the rendered sequences (created if missing)")
+    r.add_argument("--frames", type=int, help="frames per sequence (default 150; 40 with --quick)")
+    r.add_argument(
+        "--seeds",
+        type=int,
+        nargs="+",
+        metavar="N",
+        help="base scene seeds, one matrix each (default 7001, or 6001 with --tuning)",
+    )
+    r.add_argument("--tuning", action="store_true", help="use (or name with --seeds) the tuning seed set")
+    r.add_argument("--model", default=None, help="ONNX model (default: the shipped one)")
+    r.add_argument("--quick", action="store_true", help="reduced matrix for a smoke test (see above)")
+    r.add_argument("--size", default="1920x1080", help="image size WIDTHxHEIGHT (figures use the default)")
+    r.add_argument(
+        "--no-mirror-average", action="store_true", help="run each crop once (the daemon's default averages)"
+    )
+    r.add_argument("--json", action="store_true", help="print one JSON object (every row and every sequence)")
+    r.set_defaults(func=_cmd_robustness)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(level=args.log_level.upper(), format="%(levelname)s %(name)s: %(message)s")
+    try:
+        return args.func(args)
+    except _UsageError as exc:
+        print(f"dronekey-eval: error: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        return 130
+    except (ValueError, OSError, RuntimeError) as exc:  # bad files: sequence, video, model
+        print(f"dronekey-eval: error: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,159 @@
+"""``dronekey-bench pipeline`` and ``dronekey-bench soak`` on a tiny clip with the untrained test model:
+the commands run the daemon with every output on and report every figure. Short runs, no speed
+assertions (the figures come from the commands themselves, see docs/performance.md)."""
+
+import json
+import re
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+from daemon_media import encode_clip, write_untrained_model
+
+from dronekey.geometry.camera import CameraModel
+
+PIPELINE_KEYS = {
+    "frames",
+    "fps",
+    "latency_ms_p50",
+    "latency_ms_p99",
+    "decode_fps",
+    "model_fps",
+    "efficiency",
+    "cpu_percent",
+    "rss_mb",
+}
+
+
+@pytest.fixture(scope="module")
+def assets(tmp_path_factory) -> Path:
+    folder = tmp_path_factory.mktemp("bench")
+    encode_clip(folder / "clip.mp4", "libx264", frames=20)
+    CameraModel.from_fov(640, 480, 60).save_yaml(folder / "camera.yaml")  # scaled to 320x240
+    write_untrained_model(folder / "untrained.onnx")
+    return folder
+
+
+def bench(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "dronekey.bench.cli", *args], capture_output=True, text=True, timeout=120
+    )
+
+
+def common(assets: Path) -> list[str]:
+    return [
+        "--source", str(assets / "clip.mp4"), "--calib", str(assets / "camera.yaml"),
+        "--model", str(assets / "untrained.onnx"),
+    ]  # fmt: skip
+
+
+def test_pipeline_reports_every_figure(assets):
+    result = bench(
+        "pipeline", *common(assets), "--frames", "30", "--latency-frames", "12", "--warmup", "4", "--json"
+    )
+    assert result.returncode == 0, result.stderr
+    report = json.loads(result.stdout)
+    assert set(report) >= PIPELINE_KEYS
+    assert report["frames"] == 26  # measured after the warm-up; the 20-frame clip looped
+    for key in PIPELINE_KEYS:
+        assert report[key] > 0, key
+    assert report["efficiency"] == pytest.approx(
+        report["fps"] / min(report["decode_fps"], report["model_fps"]), rel=0.01, abs=0.001
+    )  # from the rounded figures
+    details = report["details"]
+    assert details["resolution"] == [320, 240]
+    assert set(details["paced"]["outputs"]) == {"zenoh", "mavlink", "mcap"}
+    for output in details["paced"]["outputs"].values():
+        assert output["published"] == 12 and output["errors"] == 0
+    assert details["model_threads"] == 1 and details["decode_threads"] >= 1
+
+
+def test_pipeline_table(assets):
+    result = bench("pipeline", *common(assets), "--frames", "10", "--latency-frames", "6", "--warmup", "2")
+    assert result.returncode == 0, result.stderr
+    assert {line.split()[0] for line in result.stdout.splitlines()} == PIPELINE_KEYS
+
+
+def test_pipeline_thread_overrides_reach_the_daemon(assets):
+    result = bench(
+        "pipeline", *common(assets), "--frames", "10", "--latency-frames", "6", "--warmup", "2",
+        "--decode-threads", "2", "--model-threads", "2", "--json",
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    details = json.loads(result.stdout)["details"]
+    assert details["decode_threads"] == 2 and details["model_threads"] == 2
+
+
+def test_soak_reports_rss_over_time(assets):
+    result = bench(
+        "soak", *common(assets), "--frames", "40", "--warmup", "10", "--sample-s", "0.2",
+        "--max-growth", "1000", "--json",
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    report = json.loads(result.stdout)
+    assert report["frames"] == 40 and report["ok"] is True
+    assert report["rss_mb_start"] > 0 and report["rss_mb_end"] > 0
+    growth = 100 * (report["rss_mb_end"] - report["rss_mb_start"]) / report["rss_mb_start"]
+    assert report["rss_growth_percent"] == pytest.approx(growth, abs=0.05)  # from rounded MiB
+    assert report["samples"] and report["samples"][-1]["frames"] == 40
+    assert set(report["outputs"]) == {"zenoh", "mavlink", "mcap"}
+
+
+def test_soak_over_the_growth_limit_exits_1(assets):
+    result = bench("soak", *common(assets), "--frames", "12", "--warmup", "2", "--max-growth", "-100")
+    assert result.returncode == 1
+    assert "RSS grew" in result.stderr
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--source", "absent.mp4"], "--source: no such file"),
+        (["--model", "absent.onnx"], "--model: no such file"),
+        (["--frames", "5", "--warmup", "10"], "must exceed --warmup"),
+    ],
+)
+def test_bad_input_is_one_line_and_exit_1(assets, args, message):
+    result = bench("pipeline", *common(assets), *args)
+    assert result.returncode == 1
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and message in lines[0] and lines[0].startswith("dronekey-bench pipeline: error:")
+
+
+def test_sigterm_stops_a_soak_with_the_figures_so_far(assets):
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "dronekey.bench.cli", "soak", *common(assets), "--frames", "1000000",
+         "--warmup", "5", "--sample-s", "0.5", "--json"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    progress = []  # the soak's progress bar on stderr: "soak: ... 250/1000000 ..."
+    reader = threading.Thread(target=lambda: progress.extend(iter(lambda: proc.stderr.read(64), "")))
+    reader.start()
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        done = re.findall(r"(\d+)/1000000", "".join(progress))
+        if done and int(done[-1]) >= 150:
+            break
+        time.sleep(0.1)
+    proc.send_signal(signal.SIGTERM)
+    out = proc.stdout.read()
+    proc.wait(timeout=60)
+    reader.join(10)
+    err = "".join(progress)
+    assert proc.returncode == 143, err[-2000:]
+    report = json.loads(out)
+    assert report["stopped_early"].startswith("stopped by SIGTERM") and report["frames"] >= 100
+    assert report["exit_code"] == 143 and "figures up to there" in err
+
+
+def test_sampler_reports_its_rate():
+    result = bench("sampler", "--samples", "10", "--json")
+    assert result.returncode == 0, result.stderr
+    out = json.loads(result.stdout)
+    assert out["samples"] == 10 and out["input"] == [128, 128]
+    assert out["samples_per_s"] > 0 and out["cpu_ms_per_sample"] > 0 and 0 <= out["with_drone"] <= 1
+    assert bench("sampler", "--samples", "0").returncode == 2  # argparse: one line, exit 2

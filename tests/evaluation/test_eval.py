@@ -1,0 +1,99 @@
+"""dronekey-eval on rendered sequences: oracle mode measures PnP + filter, errors are one line."""
+
+import json
+
+import pytest
+from daemon_media import write_untrained_model
+
+from dronekey.evaluation.cli import main
+from dronekey.sim_replay.presets import build_sequence
+from dronekey.sim_replay.writer import write_sequence
+
+
+@pytest.fixture(scope="module")
+def seq13(tmp_path_factory):
+    out = tmp_path_factory.mktemp("seq")
+    write_sequence(build_sequence("seq13", seed=101, frames=24, width=960, height=540), out)
+    return out / "seq13.json"
+
+
+def _run(capsys, *argv) -> dict:
+    assert main(list(argv)) == 0
+    return json.loads(capsys.readouterr().out)
+
+
+def test_oracle_without_noise_is_exact(seq13, capsys):
+    out = _run(capsys, "pose", "--sequence", str(seq13), "--oracle-noise", "0", "--json")
+    # The filtered estimate is a published (confirmed) track: from the 3rd hit on (confirm_hits 3).
+    assert out["frames"] == 24 and out["detected_frames"] == 22 and out["raw_pnp"]["frames"] == 24
+    assert out["mae_angle_deg"] < 0.5 and out["rmse_m"] < 0.01
+    assert out["raw_pnp"]["mae_angle_deg"] < 0.01 and out["raw_pnp"]["rmse_m"] < 0.001
+    assert out["sr95"] == 100.0
+
+
+def test_oracle_filter_beats_raw_pnp(seq13, capsys, tmp_path):
+    plot = tmp_path / "fig10.png"
+    out = _run(capsys, "pose", "--sequence", str(seq13), "--oracle-noise", "2", "--plot", str(plot), "--json")
+    assert out["mae_angle_deg"] < out["raw_pnp"]["mae_angle_deg"]
+    assert out["rmse_m"] < out["raw_pnp"]["rmse_m"]
+    assert plot.stat().st_size > 10_000
+
+
+def test_pose_with_a_model_reports_every_key(seq13, capsys, tmp_path):
+    model = write_untrained_model(tmp_path / "m.onnx")
+    out = _run(capsys, "pose", "--sequence", str(seq13), "--model", str(model), "--json")
+    for key in (
+        "sequence",
+        "frames",
+        "detected_frames",
+        "mae_angle_deg",
+        "rmse_m",
+        "mae_abs_m",
+        "ap_kp",
+        "sr90",
+        "sr95",
+        "fps",
+        "raw_pnp",
+    ):
+        assert key in out
+    assert out["frames"] == 24 and out["fps"] > 0
+
+
+def test_keypoints_command_reports_every_key(capsys, tmp_path):
+    model = write_untrained_model(tmp_path / "m.onnx")
+    out = _run(
+        capsys,
+        "keypoints",
+        "--preset",
+        "2dronekey",
+        "--frames",
+        "4",
+        "--seed",
+        "9",
+        "--model",
+        str(model),
+        "--json",
+    )
+    assert out["frames"] == 4
+    assert {"ap_kp", "sr90", "sr95", "presence_auc"} <= set(out)
+
+
+@pytest.mark.parametrize(
+    "argv,message",
+    [
+        (["pose", "--all", "/nonexistent"], "not found"),
+        (["pose"], "exactly one of"),
+        (["pose", "--sequence", "/nonexistent.json"], "not found"),
+        (["keypoints", "--preset", "seq99"], "unknown preset"),
+        (["keypoints", "--frames", "0"], "must be positive"),
+    ],
+)
+def test_bad_input_is_one_line(argv, message, capsys):
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("dronekey-eval: error:") and message in err[0]
+
+
+def test_all_lists_missing_sequences(tmp_path, capsys):
+    assert main(["pose", "--all", str(tmp_path)]) == 2
+    assert "seq11.json" in capsys.readouterr().err

@@ -1,0 +1,251 @@
+"""dronekey-eval robustness: the matrix and its seeds, rendering reused on a rerun, drone-free frames
+counted, the JSON's keys and one-line errors. Behaviour only: the shipped model was trained on the
+old renders, so no accuracy is asserted."""
+
+import json
+import os
+
+import numpy as np
+import pytest
+
+from dronekey.evaluation import robustness as rb
+from dronekey.evaluation.cli import main
+from dronekey.geometry.rotations import rotation_from_euler_deg
+
+# A tiny matrix: two LED modes on the held-out photos, one motion (the first sequence is far), two
+# drone-free sequences; 6 frames at 320 x 180.
+TINY = {
+    "frames": 6,
+    "leds": ("red-front", "off"),
+    "backgrounds": ("photos",),
+    "motions": ("seq13",),
+    "drone_free": 2,
+    "width": 320,
+    "height": 180,
+}
+METRICS = {
+    "sequences",
+    "frames",
+    "detected_frames",
+    "detected_pct",
+    "mae_angle_deg",
+    "rmse_m",
+    "mae_abs_m",
+    "ap_kp",
+    "false_track_frames",
+    "false_tracks_per_1000_frames",
+    "false_track_ids",
+    "confident_wrong_heading_frames",
+    "confident_wrong_heading_pct",
+    "wrong_heading_frames",
+    "wrong_heading_pct",
+}
+
+ENTRY_KEYS = {"name", "seed", "style_seed", "leds", "background", "range_scale", "far", "no_drone", "reused"}
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    out = tmp_path_factory.mktemp("robustness")
+    return out, rb.run_robustness(out, **TINY)
+
+
+def test_default_matrix_and_seeds():
+    entries = rb.plan_matrix()
+    drone = [e for e in entries if not e.no_drone]
+    free = [e for e in entries if e.no_drone]
+    assert len(drone) == 4 * 3 * 3 and sum(e.frames for e in drone) == 5400
+    assert len(free) == 20 and sum(e.frames for e in free) >= 3000
+    assert {e.background for e in free} == set(rb.BACKGROUNDS) and {e.preset for e in free} == set(rb.MOTIONS)
+    # Latin square: one far motion per (LED, background) cell, a third of every LED, background, motion.
+    for led in rb.LED_CONDITIONS:
+        for bg in rb.BACKGROUNDS:
+            assert sum(e.far for e in drone if (e.leds, e.background) == (led, bg)) == 1
+    for attr, values in (("leds", rb.LED_CONDITIONS), ("background", rb.BACKGROUNDS), ("preset", rb.MOTIONS)):
+        for v in values:
+            group = [e for e in drone if getattr(e, attr) == v]
+            assert 3 * sum(e.far for e in group) == len(group)
+    seeds = [e.seed for e in entries]
+    styles = [e.style_seed for e in entries]
+    assert len(set(seeds)) == len(seeds) and len(set(styles)) == len(styles)
+    assert min(seeds) == rb.REPORTING_SEED and rb.VALIDATION_SEED not in seeds
+    tuning = {e.seed for e in rb.plan_matrix(rb.TUNING_SEED)}
+    assert not tuning & set(seeds)
+    assert len({e.name for e in entries}) == len(entries)
+
+
+def test_seed_sets_are_kept_apart():
+    with pytest.raises(ValueError, match="overlap the tuning seeds"):
+        rb.check_seeds([rb.TUNING_SEED], tuning=False)
+    with pytest.raises(ValueError, match="overlap the reporting seeds"):
+        rb.check_seeds([rb.REPORTING_SEED + 3], tuning=True)
+    with pytest.raises(ValueError, match="7919"):
+        rb.check_seeds([rb.VALIDATION_SEED - rb.DRONE_FREE_SEED_OFFSET], tuning=False)
+    with pytest.raises(ValueError, match="overlap"):
+        rb.check_seeds([8001, 8002], tuning=False)
+    plans = rb.check_seeds([8001, 9001], tuning=False)
+    assert [p[0].seed for p in plans.values()] == [8001, 9001]
+
+
+@pytest.mark.parametrize(
+    "kwargs,message",
+    [
+        ({"leds": ("blue",)}, "leds: unknown 'blue'"),
+        ({"backgrounds": ()}, "backgrounds must be a non-empty list"),
+        ({"motions": ("seq13", "seq13")}, "motions must not repeat"),
+        ({"frames": 0}, "frames must be an integer >= 1, got 0"),
+        ({"drone_free": -1}, "drone_free must be an integer >= 0, got -1"),
+        ({"far_range_scale": 0}, "far_range_scale must be a positive number"),
+    ],
+)
+def test_plan_errors_name_the_argument(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        rb.plan_matrix(**kwargs)
+
+
+def test_match_gate():
+    assert rb.match_gate_m(np.array([0.0, 0.0, 1.0])) == 0.5
+    assert rb.match_gate_m(np.array([0.0, 6.0, 8.0])) == pytest.approx(2.5)
+
+
+def _scores(false, detected=(), wrong=(), confident=(), dt=()):
+    n = len(detected)
+    R = np.repeat(np.eye(3)[None], n, axis=0)
+    t_true = np.tile([0.0, 0.0, 4.0], (n, 1))
+    t_track = t_true + np.asarray(dt, dtype=float).reshape(n, 3) if n else t_true
+    return rb.SequenceScores(
+        no_drone=n == 0,
+        false_frame=np.asarray(false, bool),
+        false_ids=int(any(false)),
+        detected=np.asarray(detected, bool),
+        R_track=R,
+        t_track=t_track,
+        R_true=R,
+        t_true=t_true,
+        wrong_heading=np.asarray(wrong, bool).reshape(n),
+        confident_wrong_heading=np.asarray(confident, bool).reshape(n),
+        kp_pred=np.zeros((n, 4, 2)),
+        kp_true=np.zeros((n, 4, 2)),
+        area=np.ones(n),
+        score=np.ones(n),
+        has_pred=np.ones(n, bool),
+    )
+
+
+def test_summarise_pools_frames():
+    a = _scores([False, True], [True, False], [True, False], [False, False], [[0.3, 0, 0], [0, 0, 0]])
+    b = _scores([False, False], [True, True], [False, False], [False, False], [[0, 0.1, 0], [0, 0.1, 0]])
+    free = _scores([True, False, False, True])
+    s = rb.summarise([a, b, free])
+    assert s["sequences"] == 3 and s["frames"] == 8
+    assert s["detected_frames"] == 3 and s["detected_pct"] == 75.0
+    # RMSE over the 3 detected frames (not the mean of per-sequence RMSEs).
+    assert s["rmse_m"] == pytest.approx(np.sqrt((0.09 + 0.01 + 0.01) / 3), abs=1e-4)
+    assert s["false_track_frames"] == 3 and s["false_tracks_per_1000_frames"] == 375.0
+    assert s["false_track_ids"] == 2
+    assert s["wrong_heading_frames"] == 1 and s["wrong_heading_pct"] == 25.0
+    assert s["confident_wrong_heading_frames"] == 0
+    only_free = rb.summarise([free])
+    assert only_free["false_tracks_per_1000_frames"] == 500.0 and only_free["mae_angle_deg"] is None
+    assert set(only_free) == METRICS
+
+
+def test_wrong_heading_is_a_geodesic_angle_over_90_deg():
+    # The front/back twin (180 deg of yaw) is the case the metric is for.
+    from dronekey.geometry.rotations import geodesic_angle_deg
+
+    R = rotation_from_euler_deg(30.0, 5.0, -3.0)
+    twin = rotation_from_euler_deg(210.0, -5.0, 3.0)
+    assert geodesic_angle_deg(R, twin) > rb.WRONG_HEADING_DEG
+
+
+def test_report_json_keys_and_drone_free_frames(tiny):
+    _, report = tiny
+    d = json.loads(json.dumps(report.to_dict()))
+    assert set(d) == {"settings", "groups", "sequences"}
+    assert d["settings"]["seed_set"] == "reporting" and d["settings"]["seeds"] == [rb.REPORTING_SEED]
+    assert d["settings"]["reused_sequences"] == 0
+    assert len(d["sequences"]) == 4
+    for seq in d["sequences"]:
+        assert set(seq) >= METRICS
+        assert set(seq) >= ENTRY_KEYS
+        assert seq["frames"] == 6 and not seq["reused"]
+    assert [s["far"] for s in d["sequences"][:2]] == [True, False]
+    rows = {(g["by"], g["value"]): g for g in d["groups"]}
+    assert set(rows) == {
+        ("leds", "red-front"),
+        ("leds", "off"),
+        ("background", "photos"),
+        ("motion", "seq13"),
+        ("range", "near"),
+        ("range", "far x2.5"),
+        ("all", "drone sequences"),
+        ("drone-free", "drone-free"),
+    }
+    for g in d["groups"]:
+        assert set(g) >= METRICS
+    # Every drone-free frame is scored, with or without an annotation.
+    free = rows[("drone-free", "drone-free")]
+    assert free["sequences"] == 2 and free["frames"] == 12
+    assert 0 <= free["false_track_frames"] <= 12
+    assert free["false_tracks_per_1000_frames"] == pytest.approx(
+        1000 * free["false_track_frames"] / 12, abs=0.01
+    )
+    assert free["ap_kp"] is None and free["detected_pct"] is None
+    drone = rows[("all", "drone sequences")]
+    assert drone["frames"] == 12 and 0 <= drone["detected_pct"] <= 100
+    table = report.table()
+    assert "leds red-front" in table and "drone-free" in table and "far x2.5" in table
+
+
+def test_rerun_reuses_the_renders(tiny):
+    out, first = tiny
+    paths = [s.rendered.json_path for s in first.sequences]
+    stamps = [os.stat(p).st_mtime_ns for p in paths]
+    again = rb.run_robustness(out, **{**TINY, "leds": ("red-front",), "drone_free": 1})
+    assert again.settings["reused_sequences"] == 2
+    assert all(s.rendered.reused for s in again.sequences)
+    assert [os.stat(p).st_mtime_ns for p in paths] == stamps
+    # Other settings are another sequence: rendered, the earlier one left alone.
+    longer = rb.run_robustness(out, **{**TINY, "leds": ("red-front",), "drone_free": 0, "frames": 7})
+    assert longer.settings["reused_sequences"] == 0
+    assert longer.sequences[0].rendered.json_path != paths[0]
+    assert os.stat(paths[0]).st_mtime_ns == stamps[0]
+
+
+def test_cli_json_then_table(tmp_path, capsys):
+    argv = ["robustness", "--out", str(tmp_path), "--quick", "--frames", "3", "--size", "320x180"]
+    assert main([*argv, "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["settings"]["backgrounds"] == list(rb.QUICK_BACKGROUNDS)
+    assert len(d["sequences"]) == 4 * 3 + rb.QUICK_DRONE_FREE
+    assert main(argv) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith("robustness: reporting seeds 7001")
+    assert any(line.startswith("drone-free") for line in lines)
+
+
+@pytest.mark.parametrize(
+    "extra,message",
+    [
+        (["--frames", "0"], "--frames must be positive, got 0"),
+        (["--seeds", "-3"], "--seeds must be >= 0, got -3"),
+        (["--size", "12"], "--size must be WIDTHxHEIGHT"),
+        (["--size", "0x10"], "--size must be positive"),
+        (["--model", "/nonexistent.onnx"], "--model not found"),
+        (["--seeds", "6001"], "overlap the tuning seeds"),
+        (["--tuning", "--seeds", "7001"], "overlap the reporting seeds"),
+    ],
+)
+def test_bad_arguments_are_one_line(extra, message, tmp_path, capsys):
+    assert main(["robustness", "--out", str(tmp_path / "out"), *extra]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("dronekey-eval: error:") and message in err[0]
+    assert not (tmp_path / "out").exists()  # nothing rendered
+
+
+def test_out_must_be_a_folder(tmp_path, capsys):
+    path = tmp_path / "file"
+    path.write_text("x")
+    assert main(["robustness", "--out", str(path)]) == 2
+    assert "--out must be a folder" in capsys.readouterr().err

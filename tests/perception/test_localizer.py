@@ -1,0 +1,115 @@
+"""Localiser and pipeline plumbing: candidate search on real rendered frames, boxes, empty frames."""
+
+import cv2
+import numpy as np
+import pytest
+from daemon_media import write_untrained_model
+
+from dronekey.geometry.drone_spec import load_spec
+from dronekey.perception.localizer import LocalizerConfig, box_from_keypoints, box_from_pose
+from dronekey.pipeline import TrackingPipeline
+from dronekey.sim_replay.backgrounds import landscape, sky, urban
+from dronekey.sim_replay.mesh import DroneStyle, build_mesh
+from dronekey.sim_replay.presets import build_sequence, preset_camera
+from dronekey.sim_replay.renderer import Lighting, render_drone
+from dronekey.types import Frame
+
+SPEC = load_spec("mini2")
+
+
+def _contains(roi, box) -> bool:
+    x0, y0, side = roi
+    x, y, w, h = box
+    return x0 <= x and y0 <= y and x + w <= x0 + side and y + h <= y0 + side
+
+
+@pytest.fixture(scope="module")
+def pipeline(tmp_path_factory):
+    model = write_untrained_model(tmp_path_factory.mktemp("m") / "m.onnx")
+    return TrackingPipeline(preset_camera(), model, drone=SPEC)
+
+
+def test_box_from_pose_holds_the_rendered_drone():
+    rf = next(iter(build_sequence("seq13", seed=3, frames=1)))
+    ann = rf.record.drone
+    x, y, w, h = box_from_pose(preset_camera(), SPEC, ann.rotation, ann.translation)
+    bx, by, bw, bh = ann.bbox_xywh
+    # The projected propeller discs cover the drawn drone (up to the body hanging below).
+    assert x <= bx + 0.1 * bw and y <= by + 0.1 * bh
+    assert x + w >= bx + 0.9 * bw and y + h >= by + 0.9 * bh
+    _, _, kw, kh = box_from_keypoints(ann.keypoints_px, SPEC)
+    assert kw > np.ptp(ann.keypoints_px[:, 0]) and kh > np.ptp(ann.keypoints_px[:, 1])
+
+
+def test_behind_the_camera_has_no_box():
+    assert box_from_pose(preset_camera(), SPEC, np.eye(3), np.array([0.0, 0.0, -3.0])) is None
+
+
+@pytest.mark.parametrize("seed", [11, 12])
+def test_acquisition_candidates_include_the_drone(pipeline, seed):
+    rf = next(iter(build_sequence("seq11", seed=seed, frames=1)))
+    rois = pipeline.localizer.candidate_rois(rf.image)
+    assert 1 <= len(rois) <= LocalizerConfig().max_candidates
+    centre = np.asarray(rf.record.drone.bbox_xywh[:2]) + np.asarray(rf.record.drone.bbox_xywh[2:]) / 2
+    assert any(x0 <= centre[0] <= x0 + s and y0 <= centre[1] <= y0 + s for x0, y0, s in rois)
+
+
+@pytest.mark.parametrize("background", [sky, landscape])
+@pytest.mark.parametrize("size_px", [30, 600])
+def test_acquisition_candidates_cover_drones_from_30_to_600_px(pipeline, size_px, background):
+    """The ends of the size range the daemon must handle in a 1080p frame: some candidate crop holds
+    the whole drone and is at most 3.5 times its size (the network then refines the crop)."""
+    camera, rng = preset_camera(), np.random.default_rng(size_px)
+    image = background(1080, 1920, rng)
+    R = next(iter(build_sequence("seq13", seed=3, frames=1))).record.drone.rotation
+    z = camera.fx * SPEC.extent_m / size_px
+    t = z * np.array([(800 - camera.cx) / camera.fx, (500 - camera.cy) / camera.fy, 1.0])
+    drone = render_drone(image, camera, build_mesh(SPEC), R, t, DroneStyle.random(rng), Lighting.random(rng))
+    box = drone.bbox_xywh
+    assert 0.8 * size_px <= max(box[2:]) <= 1.05 * size_px
+    rois = pipeline.localizer.candidate_rois(image)
+    assert any(_contains(roi, box) and roi[2] <= 3.5 * max(box[2:]) for roi in rois), (box, rois)
+
+
+def test_a_drone_joined_to_wires_and_buildings_is_still_proposed(pipeline):
+    """Wires across the frame join every salient thing into one region as big as the frame (a
+    rendered seq13 frame did this): that region is searched at its peaks, and a drone seen moving
+    (the motion map) is proposed on its own even inside it."""
+    camera, rng = preset_camera(), np.random.default_rng(5)
+    background = urban(1080, 1920, rng)
+    R = next(iter(build_sequence("seq13", seed=3, frames=1))).record.drone.rotation
+    z = camera.fx * SPEC.extent_m / 90
+    frames, boxes = [], []
+    for u in (1000, 1016):  # the drone moves 16 px between two frames
+        image = background.copy()
+        t = z * np.array([(u - camera.cx) / camera.fx, (650 - camera.cy) / camera.fy, 1.0])
+        drone = render_drone(
+            image, camera, build_mesh(SPEC), R, t, DroneStyle.random(rng), Lighting.random(rng)
+        )
+        cv2.line(image, (0, 180), (1919, 170), (20, 20, 20), 3)  # wires through the whole frame
+        cv2.line(image, (1130, 200), (1010 + u - 1000, 1079), (20, 20, 20), 4)
+        frames.append(image)
+        boxes.append(drone.bbox_xywh)
+    localizer = pipeline.localizer
+    localizer._prev_small = None
+    first = localizer.candidate_rois(frames[0])
+    assert all(roi[2] <= 1.8 * LocalizerConfig().max_drone_px for roi in first)  # no frame-sized crop
+    second = localizer.candidate_rois(frames[1])
+    assert any(_contains(roi, boxes[1]) and roi[2] <= 3.5 * max(boxes[1][2:]) for roi in second), second
+
+
+def test_empty_sky_gives_no_candidate_and_no_track(pipeline):
+    sky = np.empty((1080, 1920, 3), np.uint8)
+    sky[:] = np.linspace(200, 150, 1080, dtype=np.uint8)[:, None, None]  # a smooth gradient
+    rng = np.random.default_rng(0)
+    for i in range(3):
+        noisy = np.clip(sky + rng.normal(0, 2, sky.shape), 0, 255).astype(np.uint8)
+        out = pipeline.process(Frame(i, i * 33_333_333, noisy))
+        assert out.detection is None and out.tracks == () and out.mode == "none"
+
+
+def test_frame_of_the_wrong_size_is_refused(pipeline):
+    from dronekey.geometry.camera import CalibrationError
+
+    with pytest.raises(CalibrationError, match="960x540"):
+        pipeline.process(Frame(0, 0, np.zeros((540, 960, 3), np.uint8)))

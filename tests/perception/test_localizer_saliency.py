@@ -1,0 +1,53 @@
+"""The localiser's fast saliency helpers give exactly what the plain numpy formulas give (they are
+speed-ups, not approximations), so acquisition picks the same candidates as before."""
+
+import cv2
+import numpy as np
+import pytest
+
+from dronekey.perception.localizer import _blobs, _max_abs_difference, _median
+
+
+def reference_blobs(saliency, min_contrast):
+    """The original formulation: np.median, the whole map labelled."""
+    med = float(np.median(saliency))
+    mad = float(np.median(np.abs(saliency - med))) + 1e-3
+    thr = max(min_contrast, med + 8.0 * 1.4826 * mad)
+    mask = cv2.dilate((saliency > thr).astype(np.uint8), np.ones((3, 3), np.uint8), iterations=2)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    out = []
+    for i in range(1, n):
+        x, y, bw, bh, area = stats[i]
+        if area < 4:
+            continue
+        region = saliency[y : y + bh, x : x + bw][labels[y : y + bh, x : x + bw] == i]
+        out.append((float(region.max()) * np.sqrt(float(area)), (float(x), float(y), float(bw), float(bh))))
+    return out
+
+
+@pytest.mark.parametrize("n", [1, 2, 7, 8, 129_600, 129_601])
+def test_median_is_numpys(n):
+    rng = np.random.default_rng(n)
+    for scale in (1e-3, 1.0, 255.0):
+        values = (rng.random(n) * scale).astype(np.float32)
+        assert _median(values) == float(np.median(values))
+        rounded = np.round(values)  # many ties
+        assert _median(rounded) == float(np.median(rounded))
+
+
+def test_max_abs_difference_is_numpys():
+    rng = np.random.default_rng(0)
+    a = (rng.random((270, 480, 3)) * 255).astype(np.float32)
+    b = cv2.GaussianBlur(a, (0, 0), 6.0)
+    assert np.array_equal(_max_abs_difference(a, b), np.abs(a - b).max(axis=2))
+
+
+def test_blobs_are_the_reference_blobs():
+    rng = np.random.default_rng(1)
+    for k in range(50):
+        saliency = (rng.random((270, 480)) ** (4 + k % 8) * 120).astype(np.float32)
+        assert _blobs(saliency, 12.0) == reference_blobs(saliency, 12.0)
+    assert _blobs(np.zeros((64, 64), np.float32), 12.0) == []
+    corners = np.zeros((64, 64), np.float32)
+    corners[:3, :3] = corners[-3:, -3:] = 50.0
+    assert _blobs(corners, 12.0) == reference_blobs(corners, 12.0)

@@ -1,0 +1,80 @@
+"""The plausibility gate: what a drone's four propellers can look like, and what a cloud's can't."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from dronekey.geometry.camera import CameraModel
+from dronekey.geometry.drone_spec import load_spec
+from dronekey.geometry.rotations import rotation_from_euler_deg
+from dronekey.perception.localizer import box_from_keypoints
+from dronekey.perception.plausibility import PlausibilityConfig, check_detection, check_pose
+from dronekey.perception.pose import PoseEstimator
+from dronekey.types import KeypointDetection
+
+CAMERA = CameraModel.from_fov(1920, 1080, 70)
+SPEC = load_spec("mini2")
+R_CAM = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])  # FRD level, facing away
+
+
+def drone_detection(t=(0.3, -0.4, 5.0), yaw=30.0) -> KeypointDetection:
+    R = R_CAM @ rotation_from_euler_deg(yaw, 10.0, -5.0)
+    kp = CAMERA.project_body(SPEC.keypoints_3d, R, np.asarray(t))
+    x, y, w, h = box_from_keypoints(kp, SPEC)
+    side = int(1.3 * max(w, h))
+    roi = (int(x + w / 2 - side / 2), int(y + h / 2 - side / 2), side)
+    return KeypointDetection(kp, 0.99, roi, 0.9)
+
+
+def test_a_rendered_drone_passes_and_its_pose_too():
+    det = drone_detection()
+    assert check_detection(det, CAMERA.size) is None
+    pose = PoseEstimator(CAMERA, SPEC).estimate(det.keypoints_px)
+    assert check_pose(pose, det, CAMERA, SPEC) is None
+
+
+def test_collapsed_pairs_are_refused():
+    det = drone_detection()
+    kp = det.keypoints_px.copy()
+    kp[1] = kp[0] + 0.5  # two propellers half a pixel apart, as on the cloud of seq11 seed 9011
+    reason = check_detection(KeypointDetection(kp, 1.0, det.roi), CAMERA.size)
+    assert reason is not None and "collapsed" in reason
+
+
+def test_keypoints_outside_the_frame_or_the_crop_are_refused():
+    det = drone_detection()
+    above = det.keypoints_px - [0.0, det.keypoints_px[:, 1].max() + 12.0]  # all above the frame
+    x0, y0, side = det.roi
+    moved = KeypointDetection(above, 1.0, (x0, int(y0 - det.keypoints_px[:, 1].max() - 12), side))
+    assert "outside the frame" in check_detection(moved, CAMERA.size)
+    assert "outside their crop" in check_detection(
+        KeypointDetection(det.keypoints_px, 1.0, (0, 0, 40)), CAMERA.size
+    )
+
+
+def test_a_truncated_drone_at_the_edge_passes():
+    det = drone_detection(t=(3.47, -0.4, 5.0))  # the rightmost propellers just past the right edge
+    assert det.keypoints_px[:, 0].max() > CAMERA.width - 0.5 > det.keypoints_px[:, 0].mean()
+    assert check_detection(det, CAMERA.size) is None
+
+
+def test_a_speck_in_a_big_crop_is_refused():
+    det = drone_detection(t=(0.3, -0.4, 40.0))
+    x0, y0, side = det.roi
+    big = KeypointDetection(det.keypoints_px, 1.0, (x0 - 300, y0 - 300, side + 600))
+    assert "spread" in check_detection(big, CAMERA.size)
+
+
+def test_range_out_of_bounds_is_refused():
+    det = drone_detection()
+    pose = PoseEstimator(CAMERA, SPEC).estimate(det.keypoints_px)
+    tight = PlausibilityConfig(range_m=(10.0, 100.0))
+    assert "range" in check_pose(pose, det, CAMERA, SPEC, tight)
+
+
+def test_bad_config_names_the_field():
+    with pytest.raises(ValueError, match="spread_in_crop"):
+        PlausibilityConfig(spread_in_crop=(0.5, 0.1))
+    with pytest.raises(ValueError, match="depth_ratio"):
+        PlausibilityConfig(depth_ratio=(1.2, 2.0))
