@@ -37,7 +37,8 @@ from dronekey.perception.localizer import (
 )
 from dronekey.perception.plausibility import PlausibilityConfig, check_detection, check_pose
 from dronekey.perception.pose import PoseEstimator, PoseRejection
-from dronekey.tracking.tracker import Tracker, TrackerConfig, TrackPrediction
+from dronekey.tracking.tracker import Tracker, TrackPrediction
+from dronekey.tracking.tracker_config import TrackerConfig
 from dronekey.types import Frame, KeypointDetection, PoseMeasurement, Track, TrackStatus
 
 __all__ = ["Measured", "PipelineOutput", "PoseTracker", "TrackingPipeline"]

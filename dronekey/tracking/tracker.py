@@ -12,34 +12,11 @@ Measurements are assigned to tracks by gated nearest neighbour: the cost is the 
 Mahalanobis distance of the position innovation, pairs above ``position_gate_chi2`` are forbidden,
 and ``scipy.optimize.linear_sum_assignment`` solves the rest.
 
-Orientation and the IPPE ambiguity: of a measurement's two solutions (``R`` and ``alternative``),
-the track is updated with the one nearer its own orientation, if it passes ``rotation_gate_chi2``.
-Planar PnP cannot always tell the two apart in one frame, and the estimator follows the track's
-prediction when it cannot, so a track that started on the wrong solution would stay there. Each
-track therefore keeps the log-odds that the solution it does *not* follow is the right one: it
-starts at 0 (no preference) and adds, every frame, the log-likelihood ratio
-``(SSR_own - SSR_other) / (2 sigma^2)`` (SSR: summed squared reprojection error of the four
-keypoints, sigma: the measurement's ``keypoint_sigma_px``). Above ``branch_switch_log_odds`` the
-track's orientation is re-initialised on the other solution and the log-odds change sign (the two
-swap roles). They are floored at ``-branch_confidence_cap`` so that no amount of agreement makes a
-track deaf to later evidence. Frames that cannot tell the solutions apart add nothing.
-
-A rotation that fails the gate with no usable alternative is skipped (the position is still used);
-after ``rotation_reset_after`` in a row the orientation is re-initialised from the measurement.
-
-Front and back (the heading twin). Four propeller hubs fit two poses 180 deg apart about the
-body's vertical axis equally well; only the drone's look (the network's front/back head,
-``heading_p``) or its flight can tell them apart. Each track keeps both hypotheses as the log-odds
-``L`` that the front it follows is the drone's front: a measurement is first turned to whichever of
-its pose and its twin is nearer the track (its ``heading_p`` with it), then adds
-``heading_evidence_weight * logit(heading_p)`` (frames are correlated, so each counts for less than
-one independent vote), clipped to ``+-heading_confidence_cap``. When ``L`` falls below
-``-heading_switch_log_odds`` the track turns to the twin and ``L`` changes sign. The published
-``Track.heading_confidence`` is ``tanh(L / 2) = 2 q - 1`` with ``q = sigmoid(L)`` (0: a coin flip,
-1: certain), and the orientation covariance gains the two-point mixture's variance
-``q (1 - q) pi^2`` about the body's vertical axis, so a coin flip reads as pi / 2 rad of yaw
-doubt, never as a confident heading. Measurements without a heading probability (NaN: a model with
-no front/back head) leave ``L`` alone and the confidence unknown (NaN).
+Orientation: of a measurement's two IPPE solutions the track follows the one nearer its own
+orientation, and keeps the log-odds that the other is right, switching when they say so
+(:mod:`dronekey.tracking.orientation_update`). Front and back: the track keeps the log-odds that
+the front it follows is the drone's front, from the network's front/back head, and turns around
+when they say it is the back (:mod:`dronekey.tracking.heading`).
 
 Lifecycle: a new track is TENTATIVE; it becomes CONFIRMED after ``confirm_hits`` hits within its
 first ``confirm_window`` frames whose evidence agrees: their ranges within a factor
@@ -57,106 +34,23 @@ from __future__ import annotations
 
 import logging
 import math
-from collections import deque
 from collections.abc import Sequence
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from dronekey.geometry.rotations import matrix_to_quat_wxyz
-from dronekey.tracking.orientation_filter import OrientationFilter
-from dronekey.tracking.position_filter import ConstantVelocityFilter
+from dronekey.tracking.heading import update_heading
+from dronekey.tracking.orientation_update import update_orientation
+from dronekey.tracking.track_record import NS_PER_S, TrackRecord
+from dronekey.tracking.tracker_config import TrackerConfig
 from dronekey.types import PoseMeasurement, Track, TrackStatus
 
-__all__ = ["TrackPrediction", "TrackState", "Tracker", "TrackerConfig", "twin_measurement", "twin_of"]
+__all__ = ["TrackPrediction", "TrackState", "Tracker"]
 
 log = logging.getLogger(__name__)
 
-_NS_PER_S = 1_000_000_000
 _FORBIDDEN = 1e12  # assignment cost of a gated-out pair
-
-
-_MAY_BE_ZERO = frozenset({"heading_from_motion"})
-
-
-@dataclass(frozen=True)
-class TrackerConfig:
-    """Thresholds and noise levels of :class:`Tracker`; every field is checked on construction.
-
-    Attributes
-    ----------
-    accel_std_mps2 : standard deviation of the white acceleration of the position model (m/s^2).
-    angular_accel_std_radps2 : the same for the orientation model (rad/s^2).
-    initial_velocity_std_mps : prior standard deviation of a new track's velocity (m/s).
-    initial_angular_velocity_std_radps : the same for its angular velocity (rad/s).
-    position_gate_chi2 : a measurement whose squared Mahalanobis position distance to a track
-        exceeds this cannot update it (chi-square, 3 dof; 16.27 keeps 99.9 % of true measurements).
-    rotation_gate_chi2 : the same for the rotation innovation.
-    rotation_reset_after : after this many consecutive gated-out rotations of an updated track, the
-        orientation is re-initialised from the measurement (the track had locked onto a wrong one).
-    branch_switch_log_odds : log-odds in favour of the IPPE solution a track does not follow at
-        which it switches to it (2: odds of about 7 to 1; the hysteresis between switching and
-        switching back is twice this).
-    branch_confidence_cap : floor on those log-odds, as a positive number: the most a track can
-        be sure of its solution (7: about 1000 to 1).
-    confirm_hits, confirm_window : a track is confirmed after ``confirm_hits`` hits within its first
-        ``confirm_window`` frames (update calls); otherwise it is dropped.
-    max_coast_s : a track without a measurement for longer than this (seconds) is lost.
-    max_tracks : live tracks at most; measurements that would start more are ignored.
-    confirm_range_spread : the confirming hits' largest range over their smallest, minus one.
-    confirm_presence : their mean presence score at least this (NaN scores are not counted).
-    heading_evidence_weight : weight of one frame's front/back log-odds.
-    heading_switch_log_odds : log-odds against the followed front at which a track turns around.
-    heading_confidence_cap : the most log-odds a track can gather either way (7: about 1000 to 1).
-    heading_from_motion : log-odds per frame given to "the nose points where the drone flies"
-        (multirotors mostly fly nose-first): ``w cos(nose, horizontal velocity) min(1, speed / 2
-        m/s)``, the horizontal plane taken as the one normal to the drone's own vertical axis. 0
-        (default) turns it off: a drone that crabs sideways or flies backwards (a scripted camera
-        drone, the Tab. I sequences) would be read the wrong way round.
-    """
-
-    accel_std_mps2: float = 4.0
-    angular_accel_std_radps2: float = 8.0
-    initial_velocity_std_mps: float = 3.0
-    initial_angular_velocity_std_radps: float = 2.0
-    position_gate_chi2: float = 16.27
-    rotation_gate_chi2: float = 16.27
-    rotation_reset_after: int = 5
-    branch_switch_log_odds: float = 2.0
-    branch_confidence_cap: float = 7.0
-    confirm_hits: int = 3
-    confirm_window: int = 5
-    max_coast_s: float = 1.0
-    max_tracks: int = 4
-    confirm_range_spread: float = 0.5
-    confirm_presence: float = 0.6
-    heading_evidence_weight: float = 0.3
-    heading_switch_log_odds: float = 1.5
-    heading_confidence_cap: float = 7.0
-    heading_from_motion: float = 0.0
-
-    def __post_init__(self) -> None:
-        for f in fields(self):
-            value = getattr(self, f.name)
-            if f.type == "int":
-                if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
-                    raise ValueError(f"TrackerConfig.{f.name} must be an integer >= 1, got {value!r}")
-                continue
-            lowest_ok = 0.0 if f.name in _MAY_BE_ZERO else math.nextafter(0.0, 1.0)
-            if (
-                isinstance(value, bool)
-                or not isinstance(value, int | float | np.number)
-                or not math.isfinite(value)
-                or value < lowest_ok
-            ):
-                kind = "non-negative" if f.name in _MAY_BE_ZERO else "positive"
-                raise ValueError(f"TrackerConfig.{f.name} must be a {kind} finite number, got {value!r}")
-        if self.confirm_window < self.confirm_hits:
-            raise ValueError(
-                f"TrackerConfig.confirm_window must be >= confirm_hits ({self.confirm_hits}), "
-                f"got {self.confirm_window}"
-            )
 
 
 @dataclass(frozen=True, slots=True)
@@ -197,100 +91,6 @@ class TrackState:
     orientation_cov: np.ndarray
 
 
-class _TrackRecord:
-    """One track's filters and lifecycle counters (internal to :class:`Tracker`)."""
-
-    def __init__(
-        self,
-        track_id: int,
-        t_ns: int,
-        measurement: PoseMeasurement,
-        score: float,
-        keypoints_px: np.ndarray | None,
-        config: TrackerConfig,
-    ) -> None:
-        cov = measurement.covariance
-        self.track_id = track_id
-        self.status = TrackStatus.CONFIRMED if config.confirm_hits <= 1 else TrackStatus.TENTATIVE
-        self.born_ns = t_ns
-        self.t_ns = t_ns
-        self.last_hit_ns = t_ns
-        self.hits = 1
-        self.frames = 1  # update calls seen, the birth frame included
-        self.window: deque[bool] = deque([True], maxlen=config.confirm_window)
-        self.rotation_misses = 0
-        self.branch_evidence = 0.0  # log-odds that the IPPE solution not followed is the right one
-        self.position = ConstantVelocityFilter(
-            measurement.t, cov[:3, :3], config.initial_velocity_std_mps, config.accel_std_mps2
-        )
-        self.orientation = OrientationFilter(
-            measurement.R,
-            cov[3:, 3:],
-            config.initial_angular_velocity_std_radps,
-            config.angular_accel_std_radps2,
-        )
-        self.score = score
-        self.keypoints_px = keypoints_px
-        self.reprojection_px = float(measurement.reprojection_px)
-        self.evidence: deque[tuple[float, float]] = deque(maxlen=config.confirm_window)  # (range, score)
-        self.evidence.append((float(np.linalg.norm(measurement.t)), score))
-        self.heading_log_odds: float | None = None  # None: no front/back evidence yet (NaN inputs)
-        self.heading_cap = config.heading_confidence_cap
-
-    def add_heading_evidence(self, heading_p: float, weight: float) -> None:
-        """Fold one measurement's probability that its front (turned to this track's) is right."""
-        if not math.isfinite(heading_p):
-            return
-        p = min(max(heading_p, 0.02), 0.98)
-        prior = self.heading_log_odds or 0.0
-        value = prior + weight * math.log(p / (1 - p))
-        self.heading_log_odds = max(-self.heading_cap, min(self.heading_cap, value))
-
-    @property
-    def heading_confidence(self) -> float:
-        if self.heading_log_odds is None:
-            return float("nan")
-        # 2p - 1 with p = sigmoid(L), the probability that the published front is right. Below 0
-        # (L < 0, inside the turn-around hysteresis) the published front is more likely wrong than
-        # right: no confidence in it at all, 0, not a negative figure outputs would have to refuse.
-        return max(0.0, math.tanh(self.heading_log_odds / 2))
-
-    def predict_to(self, t_ns: int) -> None:
-        dt = (t_ns - self.t_ns) / _NS_PER_S
-        self.position.predict(dt)
-        self.orientation.predict(dt)
-        self.t_ns = t_ns
-
-    def rotation_cov_cam(self) -> np.ndarray:
-        """Orientation covariance in the camera frame, with the front/back doubt about the body's
-        vertical axis (the two-point mixture's variance q (1 - q) pi^2)."""
-        cov = np.array(self.orientation.rotation_cov_cam, dtype=np.float64)
-        if self.heading_log_odds is not None:
-            q = 1.0 / (1.0 + math.exp(-self.heading_log_odds))
-            axis = self.orientation.rotation[:, 2]  # body z (down) in the camera frame
-            cov = cov + q * (1 - q) * math.pi**2 * np.outer(axis, axis)
-        return cov
-
-    def to_track(self, status: TrackStatus | None = None) -> Track:
-        R = self.orientation.rotation
-        return Track(
-            track_id=self.track_id,
-            t_ns=self.t_ns,
-            status=status or self.status,
-            position_m=self.position.position_m,
-            velocity_mps=self.position.velocity_mps,
-            position_cov=self.position.covariance[:3, :3],
-            quaternion_wxyz=matrix_to_quat_wxyz(R),
-            rotation_std_rad=np.sqrt(np.clip(np.diag(self.rotation_cov_cam()), 0.0, None)),
-            keypoints_px=self.keypoints_px,
-            score=self.score,
-            reprojection_px=self.reprojection_px,
-            hits=self.hits,
-            age_s=(self.t_ns - self.born_ns) / _NS_PER_S,
-            heading_confidence=self.heading_confidence,
-        )
-
-
 class Tracker:
     """Tracks drones over time from per-frame pose measurements.
 
@@ -304,7 +104,7 @@ class Tracker:
         if config is not None and not isinstance(config, TrackerConfig):
             raise TypeError(f"config must be a TrackerConfig, got {type(config).__name__}")
         self.config = config or TrackerConfig()
-        self._tracks: dict[int, _TrackRecord] = {}
+        self._tracks: dict[int, TrackRecord] = {}
         self._next_id = 1
         self._t_ns: int | None = None
 
@@ -380,9 +180,7 @@ class Tracker:
             if len(self._tracks) >= self.config.max_tracks:
                 log.debug("measurement ignored: max_tracks=%d live tracks", self.config.max_tracks)
                 continue
-            track = _TrackRecord(
-                self._next_id, t_ns, measurements[j], scores[j], keypoints_px[j], self.config
-            )
+            track = TrackRecord(self._next_id, t_ns, measurements[j], scores[j], keypoints_px[j], self.config)
             track.add_heading_evidence(heading_p[j], 1.0)  # a new track starts from the network's word
             self._tracks[track.track_id] = track
             self._next_id += 1
@@ -395,7 +193,7 @@ class Tracker:
         t_ns = self._check_time(t_ns, advance=False)
         out = []
         for track in self._tracks.values():
-            dt = (t_ns - track.t_ns) / _NS_PER_S
+            dt = (t_ns - track.t_ns) / NS_PER_S
             x, P = track.position.predicted(dt)
             R, rotation_cov = track.orientation.predicted(dt)
             out.append(TrackPrediction(track.track_id, track.status, t_ns, R, x[:3], P[:3, :3], rotation_cov))
@@ -468,7 +266,7 @@ class Tracker:
 
     def _apply(
         self,
-        track: _TrackRecord,
+        track: TrackRecord,
         m: PoseMeasurement,
         score: float,
         keypoints_px: np.ndarray | None,
@@ -476,8 +274,8 @@ class Tracker:
     ) -> None:
         cfg = self.config
         track.position.update(m.t, m.covariance[:3, :3])
-        m, heading_p = self._update_heading(track, m, heading_p)
-        self._update_orientation(track, m)
+        m, heading_p = update_heading(track, m, heading_p, cfg)
+        update_orientation(track, m, cfg)
         track.evidence.append((float(np.linalg.norm(m.t)), score))
         track.hits += 1
         track.frames += 1
@@ -493,7 +291,7 @@ class Tracker:
         else:
             track.status = TrackStatus.CONFIRMED
 
-    def _evidence_agrees(self, track: _TrackRecord) -> bool:
+    def _evidence_agrees(self, track: TrackRecord) -> bool:
         """The confirmation rule's consistency: ranges within a factor, presence high enough."""
         cfg = self.config
         ranges = [r for r, _ in track.evidence]
@@ -511,121 +309,17 @@ class Tracker:
             return False
         return True
 
-    def _update_heading(
-        self, track: _TrackRecord, m: PoseMeasurement, heading_p: float
-    ) -> tuple[PoseMeasurement, float]:
-        """Turn ``m`` to the track's front (or its twin, whichever is nearer the track), fold its
-        front/back evidence, and turn the track around when the evidence says its front is the back.
-        Returns the measurement as the track should use it."""
-        cfg = self.config
-        R_track = track.orientation.rotation
-        if not math.isfinite(heading_p):  # no front/back head: the order is the network's, as it is
-            return m, heading_p
-        if _angle(R_track, twin_of(m.R)) < _angle(R_track, m.R):
-            m = twin_measurement(m)
-            heading_p = 1.0 - heading_p
-        track.add_heading_evidence(heading_p, cfg.heading_evidence_weight)
-        if cfg.heading_from_motion > 0:
-            track.add_heading_evidence(_nose_first_p(R_track, track.position.velocity_mps, cfg), 1.0)
-        if track.heading_log_odds is not None and track.heading_log_odds < -cfg.heading_switch_log_odds:
-            log.info(
-                "track %d: turned around (front/back log-odds %.1f)", track.track_id, track.heading_log_odds
-            )
-            self._reinitialise_orientation(track, twin_of(R_track), m.covariance[3:, 3:])
-            track.heading_log_odds = -track.heading_log_odds
-            m = twin_measurement(m)
-        return m, heading_p
-
-    def _update_orientation(self, track: _TrackRecord, m: PoseMeasurement) -> None:
-        cfg = self.config
-        rot_cov = m.covariance[3:, 3:]
-        branches = [(m.R, m.reprojection_px)]
-        if m.alternative is not None:
-            branches.append((m.alternative[0], m.alternative[2]))
-        d2 = [track.orientation.mahalanobis_sq(R, rot_cov) for R, _ in branches]
-        own = int(np.argmin(d2))
-        if len(branches) == 2 and math.isfinite(m.keypoint_sigma_px) and m.keypoint_sigma_px > 0:
-            other_R, other_px = branches[1 - own]
-            log_odds = 2.0 * (branches[own][1] ** 2 - other_px**2) / m.keypoint_sigma_px**2
-            track.branch_evidence = max(-cfg.branch_confidence_cap, track.branch_evidence + log_odds)
-            if track.branch_evidence > cfg.branch_switch_log_odds:
-                evidence = track.branch_evidence
-                log.info(
-                    "track %d: switched to the other IPPE solution (evidence %.1f)",
-                    track.track_id,
-                    track.branch_evidence,
-                )
-                self._reinitialise_orientation(track, other_R, rot_cov)
-                track.branch_evidence = -evidence  # own and other swap roles
-                return
-        if d2[own] <= cfg.rotation_gate_chi2:
-            track.orientation.update(branches[own][0], rot_cov)
-            track.rotation_misses = 0
-            return
-        track.rotation_misses += 1
-        log.debug("track %d: rotation gated out (d2 = %.1f)", track.track_id, d2[own])
-        if track.rotation_misses >= cfg.rotation_reset_after:
-            log.info(
-                "track %d: orientation re-initialised after %d gated-out rotations",
-                track.track_id,
-                track.rotation_misses,
-            )
-            self._reinitialise_orientation(track, m.R, rot_cov)
-
-    def _reinitialise_orientation(self, track: _TrackRecord, R: np.ndarray, rotation_cov: np.ndarray) -> None:
-        cfg = self.config
-        track.orientation = OrientationFilter(
-            R, rotation_cov, cfg.initial_angular_velocity_std_radps, cfg.angular_accel_std_radps2
-        )
-        track.rotation_misses = 0
-        track.branch_evidence = 0.0
-
-    def _miss(self, track: _TrackRecord) -> None:
+    def _miss(self, track: TrackRecord) -> None:
         track.frames += 1
         track.window.append(False)
         track.keypoints_px = None
         if track.status is TrackStatus.CONFIRMED:
             track.status = TrackStatus.COASTING
 
-    def _is_lost(self, track: _TrackRecord) -> bool:
-        if track.t_ns - track.last_hit_ns > self.config.max_coast_s * _NS_PER_S:
+    def _is_lost(self, track: TrackRecord) -> bool:
+        if track.t_ns - track.last_hit_ns > self.config.max_coast_s * NS_PER_S:
             return True
         return track.status is TrackStatus.TENTATIVE and track.frames >= self.config.confirm_window
-
-
-_HALF_TURN_Z = np.diag([-1.0, -1.0, 1.0])  # 180 deg about the body's z axis
-
-
-def twin_of(R: np.ndarray) -> np.ndarray:
-    """The body -> camera rotation of the heading twin: the same drone turned 180 deg about its
-    vertical (FRD z) axis, which maps the hubs 1 2 3 4 onto 3 4 1 2."""
-    return np.asarray(R) @ _HALF_TURN_Z
-
-
-def twin_measurement(m: PoseMeasurement) -> PoseMeasurement:
-    """``m`` with its rotation (and the IPPE alternative's) turned to the heading twin."""
-    alt = m.alternative
-    if alt is not None:
-        alt = (twin_of(alt[0]), alt[1], alt[2])
-    return replace(m, R=twin_of(m.R), alternative=alt)
-
-
-def _nose_first_p(R: np.ndarray, velocity: np.ndarray, config: TrackerConfig) -> float:
-    """Probability that the followed front is right, from the nose-first prior on the velocity."""
-    up = R[:, 2]  # body z (down) in the camera frame: the drone's own vertical
-    v = np.asarray(velocity, dtype=np.float64)
-    v_h = v - (v @ up) * up
-    speed = float(np.linalg.norm(v_h))
-    if speed < 1e-6:
-        return 0.5
-    log_odds = config.heading_from_motion * float(R[:, 0] @ v_h / speed) * min(1.0, speed / 2.0)
-    return 1.0 / (1.0 + math.exp(-log_odds))
-
-
-def _angle(A: np.ndarray, B: np.ndarray) -> float:
-    """Rotation angle (rad) between two rotation matrices."""
-    c = (np.trace(np.asarray(A).T @ np.asarray(B)) - 1.0) / 2.0
-    return math.acos(min(1.0, max(-1.0, c)))
 
 
 def _per_measurement(name: str, values, n: int, default) -> list:

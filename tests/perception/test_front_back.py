@@ -6,7 +6,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from tests.test_tracker import measurement, seen_from_below, t_ns
 
 from dronekey.geometry.rotations import geodesic_angle_deg, quat_wxyz_to_matrix
 from dronekey.perception.keypoint_model import (
@@ -16,8 +15,11 @@ from dronekey.perception.keypoint_model import (
     mirror_averaged,
     mirrored_back,
 )
-from dronekey.tracking.tracker import Tracker, TrackerConfig, twin_measurement, twin_of
+from dronekey.tracking.heading import twin_measurement, twin_of
+from dronekey.tracking.tracker import Tracker
+from dronekey.tracking.tracker_config import TrackerConfig
 from dronekey.types import TrackStatus
+from tests.tracking.test_tracker import measurement, seen_from_below, t_ns
 
 KP = np.array([[0.7, 0.4], [0.35, 0.35], [0.3, 0.65], [0.65, 0.7]], dtype=np.float32)
 

@@ -18,7 +18,8 @@ from dronekey.geometry.rotations import (
     rotation_from_euler_deg,
 )
 from dronekey.perception.pose import PoseEstimator, PoseMeasurement
-from dronekey.tracking.tracker import Tracker, TrackerConfig
+from dronekey.tracking.tracker import Tracker
+from dronekey.tracking.tracker_config import TrackerConfig
 from dronekey.types import TrackStatus
 
 FPS = 30.0

@@ -1,0 +1,130 @@
+"""One track inside the tracker: its two filters, lifecycle counters and evidence.
+
+Internal to :mod:`dronekey.tracking`: :class:`~dronekey.tracking.tracker.Tracker` owns the records
+and publishes them as :class:`~dronekey.types.Track` (``TrackRecord.to_track``). The front/back
+log-odds live here (``heading_log_odds``); how measurements move them is
+:mod:`dronekey.tracking.heading`, and how they move the orientation is
+:mod:`dronekey.tracking.orientation_update`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+
+import numpy as np
+
+from dronekey.geometry.rotations import matrix_to_quat_wxyz
+from dronekey.tracking.orientation_filter import OrientationFilter
+from dronekey.tracking.position_filter import ConstantVelocityFilter
+from dronekey.tracking.tracker_config import TrackerConfig
+from dronekey.types import PoseMeasurement, Track, TrackStatus
+
+__all__ = ["NS_PER_S", "TrackRecord"]
+
+NS_PER_S = 1_000_000_000
+
+
+class TrackRecord:
+    """One track's filters and lifecycle counters, born from its first measurement at ``t_ns``."""
+
+    def __init__(
+        self,
+        track_id: int,
+        t_ns: int,
+        measurement: PoseMeasurement,
+        score: float,
+        keypoints_px: np.ndarray | None,
+        config: TrackerConfig,
+    ) -> None:
+        cov = measurement.covariance
+        self.track_id = track_id
+        self.status = TrackStatus.CONFIRMED if config.confirm_hits <= 1 else TrackStatus.TENTATIVE
+        self.born_ns = t_ns
+        self.t_ns = t_ns
+        self.last_hit_ns = t_ns
+        self.hits = 1
+        self.frames = 1  # update calls seen, the birth frame included
+        self.window: deque[bool] = deque([True], maxlen=config.confirm_window)
+        self.rotation_misses = 0
+        self.branch_evidence = 0.0  # log-odds that the IPPE solution not followed is the right one
+        self.position = ConstantVelocityFilter(
+            measurement.t, cov[:3, :3], config.initial_velocity_std_mps, config.accel_std_mps2
+        )
+        self.orientation = OrientationFilter(
+            measurement.R,
+            cov[3:, 3:],
+            config.initial_angular_velocity_std_radps,
+            config.angular_accel_std_radps2,
+        )
+        self.score = score
+        self.keypoints_px = keypoints_px
+        self.reprojection_px = float(measurement.reprojection_px)
+        self.evidence: deque[tuple[float, float]] = deque(maxlen=config.confirm_window)  # (range, score)
+        self.evidence.append((float(np.linalg.norm(measurement.t)), score))
+        self.heading_log_odds: float | None = None  # None: no front/back evidence yet (NaN inputs)
+        self.heading_cap = config.heading_confidence_cap
+
+    def add_heading_evidence(self, heading_p: float, weight: float) -> None:
+        """Fold one measurement's probability that its front (turned to this track's) is right."""
+        if not math.isfinite(heading_p):
+            return
+        p = min(max(heading_p, 0.02), 0.98)
+        prior = self.heading_log_odds or 0.0
+        value = prior + weight * math.log(p / (1 - p))
+        self.heading_log_odds = max(-self.heading_cap, min(self.heading_cap, value))
+
+    @property
+    def heading_confidence(self) -> float:
+        if self.heading_log_odds is None:
+            return float("nan")
+        # 2p - 1 with p = sigmoid(L), the probability that the published front is right. Below 0
+        # (L < 0, inside the turn-around hysteresis) the published front is more likely wrong than
+        # right: no confidence in it at all, 0, not a negative figure outputs would have to refuse.
+        return max(0.0, math.tanh(self.heading_log_odds / 2))
+
+    def predict_to(self, t_ns: int) -> None:
+        dt = (t_ns - self.t_ns) / NS_PER_S
+        self.position.predict(dt)
+        self.orientation.predict(dt)
+        self.t_ns = t_ns
+
+    def reinitialise_orientation(
+        self, R: np.ndarray, rotation_cov: np.ndarray, config: TrackerConfig
+    ) -> None:
+        """Restart the orientation filter on ``R`` (body -> camera) with the measurement's rotation
+        covariance (rad^2), forgetting the gate misses and the IPPE-solution evidence."""
+        self.orientation = OrientationFilter(
+            R, rotation_cov, config.initial_angular_velocity_std_radps, config.angular_accel_std_radps2
+        )
+        self.rotation_misses = 0
+        self.branch_evidence = 0.0
+
+    def rotation_cov_cam(self) -> np.ndarray:
+        """Orientation covariance in the camera frame, with the front/back doubt about the body's
+        vertical axis (the two-point mixture's variance q (1 - q) pi^2)."""
+        cov = np.array(self.orientation.rotation_cov_cam, dtype=np.float64)
+        if self.heading_log_odds is not None:
+            q = 1.0 / (1.0 + math.exp(-self.heading_log_odds))
+            axis = self.orientation.rotation[:, 2]  # body z (down) in the camera frame
+            cov = cov + q * (1 - q) * math.pi**2 * np.outer(axis, axis)
+        return cov
+
+    def to_track(self, status: TrackStatus | None = None) -> Track:
+        R = self.orientation.rotation
+        return Track(
+            track_id=self.track_id,
+            t_ns=self.t_ns,
+            status=status or self.status,
+            position_m=self.position.position_m,
+            velocity_mps=self.position.velocity_mps,
+            position_cov=self.position.covariance[:3, :3],
+            quaternion_wxyz=matrix_to_quat_wxyz(R),
+            rotation_std_rad=np.sqrt(np.clip(np.diag(self.rotation_cov_cam()), 0.0, None)),
+            keypoints_px=self.keypoints_px,
+            score=self.score,
+            reprojection_px=self.reprojection_px,
+            hits=self.hits,
+            age_s=(self.t_ns - self.born_ns) / NS_PER_S,
+            heading_confidence=self.heading_confidence,
+        )

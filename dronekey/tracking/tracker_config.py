@@ -1,0 +1,92 @@
+"""The tracker's thresholds and noise levels, checked on construction (docs/pose-and-tracking.md)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+__all__ = ["TrackerConfig"]
+
+_MAY_BE_ZERO = frozenset({"heading_from_motion"})
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    """Thresholds and noise levels of :class:`~dronekey.tracking.tracker.Tracker`; every field
+    is checked on construction.
+
+    Attributes
+    ----------
+    accel_std_mps2 : standard deviation of the white acceleration of the position model (m/s^2).
+    angular_accel_std_radps2 : the same for the orientation model (rad/s^2).
+    initial_velocity_std_mps : prior standard deviation of a new track's velocity (m/s).
+    initial_angular_velocity_std_radps : the same for its angular velocity (rad/s).
+    position_gate_chi2 : a measurement whose squared Mahalanobis position distance to a track
+        exceeds this cannot update it (chi-square, 3 dof; 16.27 keeps 99.9 % of true measurements).
+    rotation_gate_chi2 : the same for the rotation innovation.
+    rotation_reset_after : after this many consecutive gated-out rotations of an updated track, the
+        orientation is re-initialised from the measurement (the track had locked onto a wrong one).
+    branch_switch_log_odds : log-odds in favour of the IPPE solution a track does not follow at
+        which it switches to it (2: odds of about 7 to 1; the hysteresis between switching and
+        switching back is twice this).
+    branch_confidence_cap : floor on those log-odds, as a positive number: the most a track can
+        be sure of its solution (7: about 1000 to 1).
+    confirm_hits, confirm_window : a track is confirmed after ``confirm_hits`` hits within its first
+        ``confirm_window`` frames (update calls); otherwise it is dropped.
+    max_coast_s : a track without a measurement for longer than this (seconds) is lost.
+    max_tracks : live tracks at most; measurements that would start more are ignored.
+    confirm_range_spread : the confirming hits' largest range over their smallest, minus one.
+    confirm_presence : their mean presence score at least this (NaN scores are not counted).
+    heading_evidence_weight : weight of one frame's front/back log-odds.
+    heading_switch_log_odds : log-odds against the followed front at which a track turns around.
+    heading_confidence_cap : the most log-odds a track can gather either way (7: about 1000 to 1).
+    heading_from_motion : log-odds per frame given to "the nose points where the drone flies"
+        (multirotors mostly fly nose-first): ``w cos(nose, horizontal velocity) min(1, speed / 2
+        m/s)``, the horizontal plane taken as the one normal to the drone's own vertical axis. 0
+        (default) turns it off: a drone that crabs sideways or flies backwards (a scripted camera
+        drone, the Tab. I sequences) would be read the wrong way round.
+    """
+
+    accel_std_mps2: float = 4.0
+    angular_accel_std_radps2: float = 8.0
+    initial_velocity_std_mps: float = 3.0
+    initial_angular_velocity_std_radps: float = 2.0
+    position_gate_chi2: float = 16.27
+    rotation_gate_chi2: float = 16.27
+    rotation_reset_after: int = 5
+    branch_switch_log_odds: float = 2.0
+    branch_confidence_cap: float = 7.0
+    confirm_hits: int = 3
+    confirm_window: int = 5
+    max_coast_s: float = 1.0
+    max_tracks: int = 4
+    confirm_range_spread: float = 0.5
+    confirm_presence: float = 0.6
+    heading_evidence_weight: float = 0.3
+    heading_switch_log_odds: float = 1.5
+    heading_confidence_cap: float = 7.0
+    heading_from_motion: float = 0.0
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if f.type == "int":
+                if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
+                    raise ValueError(f"TrackerConfig.{f.name} must be an integer >= 1, got {value!r}")
+                continue
+            lowest_ok = 0.0 if f.name in _MAY_BE_ZERO else math.nextafter(0.0, 1.0)
+            if (
+                isinstance(value, bool)
+                or not isinstance(value, int | float | np.number)
+                or not math.isfinite(value)
+                or value < lowest_ok
+            ):
+                kind = "non-negative" if f.name in _MAY_BE_ZERO else "positive"
+                raise ValueError(f"TrackerConfig.{f.name} must be a {kind} finite number, got {value!r}")
+        if self.confirm_window < self.confirm_hits:
+            raise ValueError(
+                f"TrackerConfig.confirm_window must be >= confirm_hits ({self.confirm_hits}), "
+                f"got {self.confirm_window}"
+            )
