@@ -36,10 +36,10 @@ from dronekey.perception.localizer import (
     box_overlap,
 )
 from dronekey.perception.plausibility import PlausibilityConfig, check_detection, check_pose
-from dronekey.perception.pose import PoseEstimator, PoseRejection
+from dronekey.perception.pose import PoseEstimator
 from dronekey.tracking.tracker import Tracker, TrackPrediction
 from dronekey.tracking.tracker_config import TrackerConfig
-from dronekey.types import Frame, KeypointDetection, PoseMeasurement, Track, TrackStatus
+from dronekey.types import Frame, KeypointDetection, PoseMeasurement, PoseRejection, Track, TrackStatus
 
 __all__ = ["Measured", "PipelineOutput", "PoseTracker", "TrackingPipeline"]
 

@@ -9,7 +9,16 @@ from enum import StrEnum
 
 import numpy as np
 
-__all__ = ["PUBLISHED_STATUSES", "Frame", "KeypointDetection", "PoseMeasurement", "Track", "TrackStatus"]
+__all__ = [
+    "PUBLISHED_STATUSES",
+    "Frame",
+    "KeypointDetection",
+    "PoseMeasurement",
+    "PoseRejection",
+    "RejectionCode",
+    "Track",
+    "TrackStatus",
+]
 
 
 @dataclass(frozen=True, slots=True)
@@ -72,6 +81,36 @@ class PoseMeasurement:
     alternative: tuple[np.ndarray, np.ndarray, float] | None = None
     method: str = "ippe"
     keypoint_sigma_px: float = float("nan")
+
+
+class RejectionCode(StrEnum):
+    """Machine-readable class of a pose rejection (for counters and logs)."""
+
+    BAD_SHAPE = "bad_shape"
+    NON_FINITE = "non_finite"
+    OUTSIDE_FRAME = "outside_frame"
+    DUPLICATE = "duplicate"
+    COLLINEAR = "collinear"
+    CROSSED = "crossed"
+    SOLVER_FAILED = "solver_failed"
+    BEHIND_CAMERA = "behind_camera"
+    UNOBSERVABLE = "unobservable"
+    REPROJECTION = "reprojection"
+
+
+@dataclass(frozen=True, slots=True)
+class PoseRejection:
+    """No pose for these keypoints (the pose estimator's other answer).
+
+    code : the class of problem, stable for counting.
+    reason : a sentence for people, with the offending values.
+    """
+
+    code: RejectionCode
+    reason: str
+
+    def __bool__(self) -> bool:  # lets callers write ``if not result: ...``
+        return False
 
 
 class TrackStatus(StrEnum):

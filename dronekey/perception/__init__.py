@@ -4,5 +4,7 @@
 ``localizer``       where to look: search proposals over the frame, crops per prior
 ``keypoint_order``  the keypoint <-> network order (mirror, 180-degree twin) and its fixes
 ``plausibility``    the gate every detection passes before it becomes a measurement
-``pose``            PnP (IPPE) from four keypoints and the spec, with covariance
+``pose``            the pose estimator: checks the keypoints, picks an IPPE solution, the output pose
+``planar_pnp``      PnP (IPPE) from four keypoints and the spec, refined, with covariance
+``paper_frame``     the paper's rotation construction and its axes in the body frame
 """

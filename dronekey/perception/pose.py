@@ -19,38 +19,35 @@ Pipeline of :meth:`PoseEstimator.estimate`:
    ``alternative``;
 5. propagate the keypoint noise to a 6x6 covariance of [t, rotation vector] in the camera frame.
 
-See docs/pose-and-tracking.md for the reasoning and measured behaviour.
+Steps 2, 3 and 5 are :class:`~dronekey.perception.planar_pnp.PlanarPnP`; ``method="paper"`` forms
+the rotation with the paper's construction (:mod:`dronekey.perception.paper_frame`). See
+docs/pose-and-tracking.md for the reasoning and measured behaviour.
 
-Bad data never raises: :meth:`PoseEstimator.estimate` returns a :class:`PoseRejection` with a reason.
+Bad data never raises: :meth:`PoseEstimator.estimate` returns a
+:class:`~dronekey.types.PoseRejection` with a reason.
 """
 
 from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass
 from enum import StrEnum
 
-import cv2
 import numpy as np
 
 from dronekey.geometry.camera import CameraModel
 from dronekey.geometry.drone_spec import DroneSpec
-from dronekey.types import PoseMeasurement
+from dronekey.perception.paper_frame import paper_basis_in_body, paper_frame
+from dronekey.perception.planar_pnp import PlanarPnP, PnPCandidate
+from dronekey.types import PoseMeasurement, PoseRejection, RejectionCode
 
-__all__ = ["PoseEstimator", "PoseMethod", "PoseRejection", "RejectionCode", "paper_basis_in_body"]
+__all__ = ["PoseEstimator", "PoseMethod"]
 
 log = logging.getLogger(__name__)
 
-_LM_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 1e-10)
-# Central differences of the covariance Jacobian: step of the rotation vector (rad); the translation
-# step is the same times max(1 m, range).
-_STEP_ROTATION_RAD = 1e-6
 # Chi-square, 2 degrees of freedom (8 residuals - 6 pose parameters), 99.9 %: the largest summed
 # squared reprojection error, in keypoint_sigma_px^2, that noise explains.
 _CROSSED_CHI2 = 13.8
-_SIGNED_AXES = np.concatenate([np.eye(3), -np.eye(3)])
-_SMALL_ROTATIONS = np.stack([cv2.Rodrigues(_STEP_ROTATION_RAD * a)[0] for a in _SIGNED_AXES])
 
 
 class PoseMethod(StrEnum):
@@ -58,87 +55,12 @@ class PoseMethod(StrEnum):
 
     IPPE: R and t straight from IPPE (+ refinement).
     PAPER: the paper's construction (centroid, v1 = Y2 - YO, v2 = Y3 - YO, v3 = v1 x v2,
-    orthonormalised), mapped back to the FRD body frame; see :func:`paper_basis_in_body`.
+    orthonormalised), mapped back to the FRD body frame; see
+    :func:`~dronekey.perception.paper_frame.paper_basis_in_body`.
     """
 
     IPPE = "ippe"
     PAPER = "paper"
-
-
-class RejectionCode(StrEnum):
-    """Machine-readable class of a rejection (for counters and logs)."""
-
-    BAD_SHAPE = "bad_shape"
-    NON_FINITE = "non_finite"
-    OUTSIDE_FRAME = "outside_frame"
-    DUPLICATE = "duplicate"
-    COLLINEAR = "collinear"
-    CROSSED = "crossed"
-    SOLVER_FAILED = "solver_failed"
-    BEHIND_CAMERA = "behind_camera"
-    UNOBSERVABLE = "unobservable"
-    REPROJECTION = "reprojection"
-
-
-@dataclass(frozen=True, slots=True)
-class PoseRejection:
-    """No pose for these keypoints.
-
-    code : the class of problem, stable for counting.
-    reason : a sentence for people, with the offending values.
-    """
-
-    code: RejectionCode
-    reason: str
-
-    def __bool__(self) -> bool:  # lets callers write ``if not result: ...``
-        return False
-
-
-@dataclass(frozen=True, slots=True)
-class _Candidate:
-    R: np.ndarray
-    t: np.ndarray
-    sq_error_px2: float  # sum over keypoints of the squared reprojection distance
-
-    @property
-    def rms_px(self) -> float:
-        return math.sqrt(self.sq_error_px2 / 4.0)
-
-
-def _polar(M: np.ndarray) -> np.ndarray:
-    """The rotation nearest to M in the Frobenius norm (orthogonal polar factor, det +1)."""
-    U, _, Vt = np.linalg.svd(M)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
-    return U @ D @ Vt
-
-
-def _paper_frame(Y: np.ndarray) -> np.ndarray:
-    """The paper's rotation R_pose = orth([v1/|v1|, v2/|v2|, v3/|v3|]) of four 3D keypoints (4, 3).
-
-    v1 = Y2 - YO, v2 = Y3 - YO (YO the centroid), v3 = v1 x v2. v1 and v2 are not orthogonal (they
-    are two half-diagonals of the hub rectangle), so the unit vectors are orthonormalised with the
-    SVD polar factor: the nearest rotation, which treats v1 and v2 symmetrically (Gram-Schmidt would
-    keep v1 exact and bend v2 only). The polar factor commutes with rotations,
-    ``polar(Q M) = Q polar(M)``, which is what makes the body-frame correction below a constant.
-    """
-    centre = Y.mean(axis=0)
-    v1 = Y[1] - centre
-    v2 = Y[2] - centre
-    v3 = np.cross(v1, v2)
-    M = np.column_stack([v / np.linalg.norm(v) for v in (v1, v2, v3)])
-    return _polar(M)
-
-
-def paper_basis_in_body(spec: DroneSpec) -> np.ndarray:
-    """The paper's axes [v1 v2 v3] (orthonormalised) expressed in the FRD body frame, (3, 3).
-
-    The paper's R_pose maps the paper's own drone axes to the camera, ``R_pose = R @ B``, where B is
-    this matrix. Our body -> camera rotation is therefore ``R = R_pose @ B.T``. For the shipped
-    specs (hubs on a rectangle, keypoint 2 rear-right, 3 rear-left) v1 and v2 are the rear-right
-    and rear-left half-diagonals, v3 points down, and B is a yaw of 135 deg about the body z axis.
-    """
-    return _paper_frame(np.asarray(spec.keypoints_3d, dtype=np.float64))
 
 
 def _cross2(o: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
@@ -264,7 +186,7 @@ class PoseEstimator:
         self.prior_max_offset_frac = float(prior_max_offset_frac)
         self.max_reprojection_px = None if max_reprojection_px is None else float(max_reprojection_px)
         self._X = X
-        self._plane_mirror = np.eye(3) - 2.0 * np.outer(Vt[2], Vt[2])  # reflection about the hub plane
+        self._pnp = PlanarPnP(camera, X)
         self._paper_B = paper_basis_in_body(spec)
 
     # ------------------------------------------------------------------ public
@@ -298,7 +220,7 @@ class PoseEstimator:
         if problem is not None:
             return problem
 
-        candidates = self._solve(uv)
+        candidates = self._pnp.solve(uv, self.refine)
         if isinstance(candidates, PoseRejection):
             return candidates
         in_front = [c for c in candidates if self._in_front(c)]
@@ -326,7 +248,7 @@ class PoseEstimator:
                 f"reprojection error {chosen.rms_px:.2f} px exceeds max_reprojection_px="
                 f"{self.max_reprojection_px:g} (keypoints inconsistent with the drone's shape)",
             )
-        covariance = self._covariance(chosen, uv)
+        covariance = self._pnp.covariance(chosen, self.keypoint_sigma_px)
         if covariance is None:
             return PoseRejection(
                 RejectionCode.UNOBSERVABLE,
@@ -386,64 +308,12 @@ class PoseEstimator:
             )
         return None
 
-    def _solve(self, uv: np.ndarray) -> list[_Candidate] | PoseRejection:
-        try:
-            und = self.camera.undistort_points(uv)
-        except cv2.error as exc:
-            return PoseRejection(RejectionCode.SOLVER_FAILED, f"undistortPoints failed: {exc.err}")
-        if not np.all(np.isfinite(und)):
-            return PoseRejection(RejectionCode.NON_FINITE, "undistortion of the keypoints gave NaN or inf")
-        try:
-            n, rvecs, tvecs, _ = cv2.solvePnPGeneric(
-                self._X, np.ascontiguousarray(und), self.camera.K, None, flags=cv2.SOLVEPNP_IPPE
-            )
-        except cv2.error as exc:
-            return PoseRejection(RejectionCode.SOLVER_FAILED, f"solvePnPGeneric(IPPE) failed: {exc.err}")
-        if n < 1:
-            return PoseRejection(RejectionCode.SOLVER_FAILED, "solvePnPGeneric(IPPE) returned no solution")
-        candidates = []
-        for rvec, tvec in zip(rvecs, tvecs, strict=True):
-            rvec, tvec = rvec.reshape(3, 1).copy(), tvec.reshape(3, 1).copy()
-            if np.mean((self._X @ cv2.Rodrigues(rvec)[0].T + tvec.ravel())[:, 2]) < 0.0:
-                rvec, tvec = self._mirrored(rvec, tvec)
-            if self.refine:
-                try:
-                    rvec, tvec = cv2.solvePnPRefineLM(
-                        self._X, uv, self.camera.K, self.camera.dist, rvec, tvec, _LM_CRITERIA
-                    )
-                except cv2.error as exc:
-                    log.debug("solvePnPRefineLM failed, keeping the IPPE solution: %s", exc.err)
-            if not (np.all(np.isfinite(rvec)) and np.all(np.isfinite(tvec))):
-                continue
-            R = cv2.Rodrigues(rvec)[0]
-            t = tvec.ravel()
-            proj = self.camera.project_body(self._X, R, t)
-            candidates.append(_Candidate(R, t, float(np.sum((proj - uv) ** 2))))
-        if not candidates:
-            return PoseRejection(RejectionCode.SOLVER_FAILED, "PnP gave no finite solution")
-        return candidates
-
-    def _mirrored(self, rvec: np.ndarray, tvec: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The pose whose keypoints are the point reflection through the camera centre of (rvec, tvec)'s.
-
-        Points P and -P have the same image, and for a planar target -P is again a rigid pose:
-        with M the reflection about the hub plane (M X = X on the plane), -(R X + t) = R' X + t' with
-        R' = -R M (det +1) and t' = -t - R (I - M) c, c the plane's centroid. IPPE can return the
-        behind-camera branch when noise makes the quadrilateral inconsistent with a planar target in
-        front of the camera (typically concave); its reflection is in front with the same
-        reprojection error and refinement takes it from there.
-        """
-        R = cv2.Rodrigues(rvec)[0]
-        R_front = -R @ self._plane_mirror
-        t_front = -tvec.ravel() - R @ (np.eye(3) - self._plane_mirror) @ self._X.mean(axis=0)
-        return cv2.Rodrigues(R_front)[0], t_front.reshape(3, 1)
-
-    def _in_front(self, c: _Candidate) -> bool:
+    def _in_front(self, c: PnPCandidate) -> bool:
         return bool(np.all((self._X @ c.R.T + c.t)[:, 2] >= self.min_depth_m))
 
     def _choose(
-        self, candidates: list[_Candidate], prior: tuple[np.ndarray, np.ndarray] | None
-    ) -> tuple[_Candidate, _Candidate | None]:
+        self, candidates: list[PnPCandidate], prior: tuple[np.ndarray, np.ndarray] | None
+    ) -> tuple[PnPCandidate, PnPCandidate | None]:
         by_error = sorted(candidates, key=lambda c: c.sq_error_px2)
         best = by_error[0]
         other = by_error[1] if len(by_error) > 1 else None
@@ -464,36 +334,12 @@ class PoseEstimator:
             return other, best
         return best, other
 
-    def _covariance(self, c: _Candidate, uv: np.ndarray) -> np.ndarray | None:
-        """First-order covariance of [t, rotation vector] (camera frame) from isotropic pixel noise.
-
-        The residuals r = project(exp([d_theta]x) R X + t + d_t) - uv live in distorted pixels; the
-        Jacobian J (8 x 6) over (d_t, d_theta) is taken by central differences, the pose perturbed
-        on the left so that d_theta is a rotation vector in the camera frame. Gauss-Newton gives
-        cov = sigma^2 (J^T J)^-1. It describes one solution's basin; it knows nothing of the IPPE
-        ambiguity (the other solution is a separate hypothesis, ``alternative``).
-        """
-        RX = self._X @ c.R.T  # (4, 3) body points rotated into the camera frame
-        h_t = _STEP_ROTATION_RAD * max(1.0, float(np.linalg.norm(c.t)))
-        shifted = RX[None] + c.t + h_t * _SIGNED_AXES[:, None, :]  # (6, 4, 3): +x +y +z -x -y -z
-        turned = np.einsum("sij,kj->ski", _SMALL_ROTATIONS, RX) + c.t  # (6, 4, 3)
-        proj = self.camera.project(np.concatenate([shifted, turned]).reshape(-1, 3)).reshape(2, 2, 3, 8)
-        d_t = (proj[0, 0] - proj[0, 1]) / (2.0 * h_t)  # (3, 8): d residuals / d t_i
-        d_r = (proj[1, 0] - proj[1, 1]) / (2.0 * _STEP_ROTATION_RAD)
-        J = np.concatenate([d_t, d_r]).T  # (8, 6)
-        info = J.T @ J
-        eig = np.linalg.eigvalsh(info)
-        if not np.all(np.isfinite(eig)) or eig[0] <= 1e-12 * eig[-1]:
-            return None
-        cov = np.linalg.inv(info) * self.keypoint_sigma_px**2
-        return 0.5 * (cov + cov.T)
-
-    def _output_pose(self, c: _Candidate) -> tuple[np.ndarray, np.ndarray]:
+    def _output_pose(self, c: PnPCandidate) -> tuple[np.ndarray, np.ndarray]:
         if self.method is PoseMethod.IPPE:
             return c.R, c.t
         # The paper (eq. 2 writes the inverse, a typo for our convention): Y_k = R Y_obj_k + t.
         Y = self._X @ c.R.T + c.t
-        R_pose = _paper_frame(Y)
+        R_pose = paper_frame(Y)
         return R_pose @ self._paper_B.T, Y.mean(axis=0)
 
 

@@ -1,5 +1,6 @@
 """Geometry core: camera model, rotations, drone specs, crops."""
 
+import cv2
 import numpy as np
 import paths
 import pytest
@@ -133,8 +134,6 @@ def test_crop_outside_frame_is_black():
 
 
 def test_load_refuses_fisheye_unless_allowed(tmp_path):
-    import cv2
-
     path = tmp_path / "fish.yaml"
     fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
     fs.write("image_width", 640)

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 from daemon_media import write_untrained_model
 
+from dronekey.geometry.camera import CalibrationError
 from dronekey.geometry.drone_spec import load_spec
 from dronekey.perception.localizer import LocalizerConfig, box_from_keypoints, box_from_pose
 from dronekey.pipeline import TrackingPipeline
@@ -109,7 +110,5 @@ def test_empty_sky_gives_no_candidate_and_no_track(pipeline):
 
 
 def test_frame_of_the_wrong_size_is_refused(pipeline):
-    from dronekey.geometry.camera import CalibrationError
-
     with pytest.raises(CalibrationError, match="960x540"):
         pipeline.process(Frame(0, 0, np.zeros((540, 960, 3), np.uint8)))

@@ -6,14 +6,18 @@ Scenes are synthetic: the mini2 hub keypoints projected through known poses with
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from dronekey.geometry.camera import CameraModel
 from dronekey.geometry.drone_spec import load_spec
 from dronekey.geometry.rotations import geodesic_angle_deg, rotation_from_euler_deg
-from dronekey.perception.pose import PoseEstimator, PoseRejection, RejectionCode, paper_basis_in_body
-from dronekey.types import PoseMeasurement
+from dronekey.perception.paper_frame import paper_basis_in_body
+from dronekey.perception.pose import PoseEstimator, _quad_is_crossed
+from dronekey.types import PoseMeasurement, PoseRejection, RejectionCode
 
 CAMERA = CameraModel.from_fov(1920, 1080, 70, dist=np.array([-0.05, 0.01, 0.0, 0.0, 0.0]))
 SPEC = load_spec("mini2")
@@ -154,8 +158,6 @@ def test_covariance_matches_monte_carlo_spread():
 
 
 def _rotvec(R: np.ndarray) -> np.ndarray:
-    from scipy.spatial.transform import Rotation
-
     return Rotation.from_matrix(R).as_rotvec()
 
 
@@ -206,7 +208,6 @@ def test_random_views_with_noise_never_raise_and_stay_in_front():
     # Uniformly random attitudes 1.5-15 m away with 2 px noise: tiny, oblique and edge-on drones
     # included. Noise makes some quadrilaterals concave or crossed; IPPE then returns the
     # behind-camera branch, which the estimator reflects to the front.
-    from scipy.spatial.transform import Rotation
 
     rng = np.random.default_rng(4)
     estimator = PoseEstimator(CAMERA, SPEC)
@@ -226,8 +227,6 @@ def test_random_views_with_noise_never_raise_and_stay_in_front():
 
 
 def test_noise_that_crosses_the_quadrilateral_of_a_thin_drone_is_not_an_order_error():
-    from dronekey.perception.pose import _quad_is_crossed
-
     R, t = elevated(20, 0, 0, elevation_deg=8), np.array([0.3, 0.1, 10.0])  # 28 px wide, 3 px tall
     estimator = PoseEstimator(CAMERA, SPEC)
     rng = np.random.default_rng(0)
@@ -270,8 +269,6 @@ def test_bad_settings_name_the_argument(kwargs, name):
 
 
 def test_non_coplanar_spec_is_refused():
-    from dataclasses import replace
-
     bent = replace(SPEC, keypoints_3d=SPEC.keypoints_3d + np.array([[0, 0, 0.02], [0, 0, -0.02]] * 2))
     with pytest.raises(ValueError, match="coplanar"):
         PoseEstimator(CAMERA, bent)

@@ -8,6 +8,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from dronekey.geometry.camera import CameraModel
 from dronekey.geometry.drone_spec import load_spec
@@ -17,10 +18,10 @@ from dronekey.geometry.rotations import (
     quat_wxyz_to_matrix,
     rotation_from_euler_deg,
 )
-from dronekey.perception.pose import PoseEstimator, PoseMeasurement
+from dronekey.perception.pose import PoseEstimator
 from dronekey.tracking.tracker import Tracker
 from dronekey.tracking.tracker_config import TrackerConfig
-from dronekey.types import TrackStatus
+from dronekey.types import PoseMeasurement, TrackStatus
 
 FPS = 30.0
 CAMERA = CameraModel.from_fov(1920, 1080, 70, dist=np.array([-0.05, 0.01, 0.0, 0.0, 0.0]))
@@ -53,8 +54,6 @@ def measurement(
 
 
 def small_rotation(rng, std_deg: float) -> np.ndarray:
-    from scipy.spatial.transform import Rotation
-
     return Rotation.from_rotvec(rng.normal(0.0, math.radians(std_deg), 3)).as_matrix()
 
 
