@@ -24,7 +24,6 @@ import dataclasses
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, NamedTuple
 
 import torch
@@ -35,13 +34,10 @@ from dronekey.perception.keypoint_order import HEADING_TWIN
 
 __all__ = [
     "HEADING_TWIN",
-    "CheckpointError",
     "DroneKeyConfig",
     "DroneKeyNet",
     "DroneKeyOutput",
     "count_parameters",
-    "load_checkpoint",
-    "save_checkpoint",
     "sine_positional_encoding_2d",
 ]
 
@@ -372,49 +368,3 @@ def _encoder_layer_forward(layer: nn.TransformerEncoderLayer, x: torch.Tensor) -
 def count_parameters(module: nn.Module) -> int:
     """Number of trainable parameters (the figure of the paper's Tables III and IV)."""
     return sum(p.numel() for p in module.parameters() if p.requires_grad)
-
-
-class CheckpointError(ValueError):
-    """A checkpoint file is missing or does not hold a DroneKey network; the message says which."""
-
-
-def save_checkpoint(path: str | Path, net: DroneKeyNet, meta: Mapping[str, Any] | None = None) -> Path:
-    """Write ``{"config": ..., "model": state_dict, "meta": meta}`` with ``torch.save``.
-
-    ``meta`` is free-form but must hold only plain Python values (str, int, float, bool, lists,
-    dicts) so that ``load_checkpoint`` can read it with ``weights_only=True``.
-    """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    payload = {"config": net.config.to_dict(), "model": net.state_dict(), "meta": dict(meta or {})}
-    torch.save(payload, path)
-    return path
-
-
-def load_checkpoint(path: str | Path, map_location: str = "cpu") -> tuple[DroneKeyNet, dict[str, Any]]:
-    """Rebuild the network of a checkpoint written as ``save_checkpoint`` does.
-
-    Returns the network (in eval mode) and the checkpoint's ``meta`` dict. Raises
-    ``CheckpointError`` naming the path and the problem.
-    """
-    path = Path(path)
-    if not path.is_file():
-        raise CheckpointError(f"checkpoint not found: {path}")
-    try:
-        payload = torch.load(path, map_location=map_location, weights_only=True)
-    except Exception as exc:  # torch raises many types for a corrupt / foreign file
-        reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise CheckpointError(f"{path}: not a readable checkpoint ({reason})") from None
-    if not isinstance(payload, dict) or not {"config", "model"} <= set(payload):
-        keys = sorted(payload) if isinstance(payload, dict) else type(payload).__name__
-        raise CheckpointError(f"{path}: expected a dict with 'config' and 'model', got {keys}")
-    try:
-        config = DroneKeyConfig.from_dict(payload["config"])
-    except (TypeError, ValueError) as exc:
-        raise CheckpointError(f"{path}: bad config ({exc})") from None
-    net = DroneKeyNet(config)
-    try:
-        net.load_state_dict(payload["model"])
-    except RuntimeError as exc:
-        raise CheckpointError(f"{path}: weights do not match its config ({exc})") from None
-    return net.eval(), dict(payload.get("meta") or {})

@@ -20,11 +20,15 @@ Runtime on a probe batch before returning.
 from __future__ import annotations
 
 import ast
+import copy
 import logging
 from pathlib import Path
 
 import numpy as np
+import onnx
+import onnxruntime as ort
 import torch
+from onnx import numpy_helper
 from torch import nn
 
 __all__ = ["OnnxWeightsError", "frozen_batchnorm", "weights_from_onnx"]
@@ -56,8 +60,6 @@ def weights_from_onnx(path: str | Path, net: nn.Module) -> dict[str, torch.Tenso
     tensors (all-zero biases of an untrained network) and folds some slices, so names alone do not
     say whose a constant is.
     """
-    import onnx
-    from onnx import numpy_helper
 
     path = Path(path)
     if not path.is_file():
@@ -149,10 +151,6 @@ def weights_from_onnx(path: str | Path, net: nn.Module) -> dict[str, torch.Tenso
 
 
 def _check_against_runtime(path: Path, net: nn.Module, weights: dict[str, torch.Tensor]) -> None:
-    import copy
-
-    import onnxruntime as ort
-
     probe = copy.deepcopy(net).eval()
     probe.load_state_dict(weights, strict=False)
     size = probe.config.input_size

@@ -1,5 +1,5 @@
 """The DroneKey network: paper parameter count, gradients at initialisation, the written-out encoder
-layer, configuration and checkpoints."""
+layer and configuration."""
 
 import pytest
 import torch
@@ -8,13 +8,10 @@ from torch import nn
 from dronekey.nn.backbones import ResNet50Trunk
 from dronekey.nn.loss import build_loss
 from dronekey.nn.model import (
-    CheckpointError,
     DroneKeyConfig,
     DroneKeyNet,
     _encoder_layer_forward,
     count_parameters,
-    load_checkpoint,
-    save_checkpoint,
     sine_positional_encoding_2d,
 )
 
@@ -140,24 +137,3 @@ def test_unknown_config_key_is_an_error():
 def test_wrong_input_size_is_an_error():
     with pytest.raises(ValueError, match="x must have shape"):
         DroneKeyNet(TINY)(torch.zeros(1, 3, 32, 32))
-
-
-def test_checkpoint_round_trip(tmp_path):
-    torch.manual_seed(0)
-    net = DroneKeyNet(TINY).eval()
-    path = save_checkpoint(tmp_path / "ckpt.pt", net, {"epochs": 3, "drone_spec": "mini2"})
-    loaded, meta = load_checkpoint(path)
-    assert meta == {"epochs": 3, "drone_spec": "mini2"}
-    assert loaded.config == TINY
-    x = torch.randn(2, 3, 64, 64)
-    with torch.no_grad():
-        assert torch.equal(loaded(x).keypoints, net(x).keypoints)
-
-
-def test_checkpoint_errors_name_the_file(tmp_path):
-    with pytest.raises(CheckpointError, match="checkpoint not found"):
-        load_checkpoint(tmp_path / "missing.pt")
-    bad = tmp_path / "bad.pt"
-    torch.save({"weights": {}}, bad)
-    with pytest.raises(CheckpointError, match=r"bad\.pt"):
-        load_checkpoint(bad)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from dronekey.geometry.crop import CropPolicy
-from dronekey.nn.model import load_checkpoint
+from dronekey.training.checkpoints import load_checkpoint
 from dronekey.training.coco_crops import (
     MIRROR,
     CocoCropSampler,
@@ -18,7 +18,7 @@ from dronekey.training.coco_crops import (
     find_coco_splits,
     load_coco_images,
 )
-from dronekey.training.train import main
+from dronekey.training.train_cli import main
 
 
 @pytest.fixture(scope="module")

@@ -12,7 +12,7 @@ import torch
 
 from dronekey.bench import cli as bench
 from dronekey.geometry.crop import crop_square, from_normalised, to_normalised
-from dronekey.nn.model import DroneKeyConfig, DroneKeyNet, save_checkpoint
+from dronekey.nn.model import DroneKeyConfig, DroneKeyNet
 from dronekey.perception.keypoint_model import (
     IMAGENET_MEAN,
     IMAGENET_STD,
@@ -22,8 +22,9 @@ from dronekey.perception.keypoint_model import (
     default_model_path,
     preprocess_crops,
 )
-from dronekey.training import export
-from dronekey.training.export import quantize_int8
+from dronekey.training import export_cli
+from dronekey.training.checkpoints import save_checkpoint
+from dronekey.training.quantize import quantize_int8
 
 TINY = DroneKeyConfig(
     input_size=64, d_model=32, num_layers=2, num_heads=4, ff_dim=64, edge_widths=(8, 8, 16, 16, 32)
@@ -54,7 +55,7 @@ def onnx_path(trained_like, tmp_path_factory):
     folder = tmp_path_factory.mktemp("export")
     checkpoint = save_checkpoint(folder / "tiny.pt", trained_like, META)
     out = folder / "tiny.onnx"
-    assert export.main(["--checkpoint", str(checkpoint), "--out", str(out)]) == 0
+    assert export_cli.main(["--checkpoint", str(checkpoint), "--out", str(out)]) == 0
     return out
 
 
@@ -184,11 +185,13 @@ def _one_line_error(capsys, argv, main):
 
 def test_export_cli_errors_are_one_line(capsys, tmp_path):
     err = _one_line_error(
-        capsys, ["--checkpoint", str(tmp_path / "missing.pt"), "--out", "x.onnx"], export.main
+        capsys, ["--checkpoint", str(tmp_path / "missing.pt"), "--out", "x.onnx"], export_cli.main
     )
     assert "checkpoint not found" in err and "missing.pt" in err
     (tmp_path / "junk.pt").write_text("not a checkpoint")
-    err = _one_line_error(capsys, ["--checkpoint", str(tmp_path / "junk.pt"), "--out", "x.onnx"], export.main)
+    err = _one_line_error(
+        capsys, ["--checkpoint", str(tmp_path / "junk.pt"), "--out", "x.onnx"], export_cli.main
+    )
     assert "junk.pt" in err
 
 

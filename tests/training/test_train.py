@@ -4,8 +4,8 @@ import json
 
 import pytest
 
-from dronekey.nn.model import load_checkpoint
-from dronekey.training.train import main
+from dronekey.training.checkpoints import load_checkpoint
+from dronekey.training.train_cli import main
 
 
 def test_tiny_run_writes_checkpoints_and_plots_then_resumes(tmp_path):
@@ -46,7 +46,7 @@ def test_tiny_run_writes_checkpoints_and_plots_then_resumes(tmp_path):
 def test_presence_stage_is_kept_only_when_it_helps(tmp_path, caplog):
     out = tmp_path / "run"
     args = ["--preset", "tiny", "--out", str(out), "--workers", "0", "--threads", "1", "--epochs", "1"]
-    with caplog.at_level("INFO", logger="dronekey.training.train"):
+    with caplog.at_level("INFO", logger="dronekey.training"):
         assert main([*args, "--presence-steps", "5"]) == 0
     (line,) = [r.getMessage() for r in caplog.records if "presence head refit" in r.getMessage()]
     _, meta = load_checkpoint(out / "best.pt")
@@ -78,7 +78,7 @@ def test_presence_head_refit_changes_only_the_head_and_switches_its_input():
 
     from dronekey.nn.model import DroneKeyConfig, DroneKeyNet
     from dronekey.perception.keypoint_model import IMAGENET_MEAN, IMAGENET_STD, preprocess_crops
-    from dronekey.training.train import fit_presence_head
+    from dronekey.training.presence_refit import fit_presence_head
 
     torch.manual_seed(0)
     config = DroneKeyConfig(d_model=32, num_layers=2, num_heads=2, ff_dim=64, edge_widths=(8, 16, 16, 24, 32))
@@ -104,7 +104,7 @@ def test_init_from_copies_matching_weights_and_names_a_bad_file(tmp_path, capsys
     first = tmp_path / "first"
     args = ["--preset", "tiny", "--workers", "0", "--threads", "1", "--epochs", "1", "--presence-steps", "0"]
     assert main([*args, "--out", str(first)]) == 0
-    with caplog.at_level("INFO", logger="dronekey.training.train"):
+    with caplog.at_level("INFO", logger="dronekey.training"):
         assert main([*args, "--out", str(tmp_path / "second"), "--init-from", str(first / "last.pt")]) == 0
     (line,) = [r.getMessage() for r in caplog.records if r.getMessage().startswith("initialised")]
     assert "fresh: none" in line
@@ -127,3 +127,13 @@ def test_heatmap_targets_mark_every_and_front_propellers():
     assert every[3, 11] > 0.99 and front[3, 11] > 0.99
     assert every[11, 11] > 0.99 and front[11, 11] < 1e-3
     assert maps[1].abs().max() == 0  # a drone-free crop has no propellers
+
+
+def test_trainer_errors_name_the_argument(tmp_path):
+    from dronekey.training.recipe import presets
+    from dronekey.training.trainer import Trainer
+
+    with pytest.raises(ValueError, match=r"precision must be one of .* got 'fp16'"):
+        Trainer(presets()["tiny"], tmp_path, recipe_name="tiny", precision="fp16")
+    with pytest.raises(ValueError, match="workers must be >= 0, got -1"):
+        Trainer(presets()["tiny"], tmp_path, recipe_name="tiny", workers=-1)
