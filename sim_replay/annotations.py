@@ -2,7 +2,8 @@
 and 6DoF pose when it is visible.
 
 The JSON reader and writer for this layout (ours and the real 2DroneKey / 3DronePose COCO files)
-live in ``sim_replay.sequence_io``; the renderer produces these objects directly.
+live in ``sim_replay.io`` (``sequence_reader``, ``sequence_writer``); the renderer produces these
+objects directly.
 """
 
 from __future__ import annotations

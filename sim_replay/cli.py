@@ -23,16 +23,15 @@ from tqdm import tqdm
 
 from dronekey.geometry.camera import CalibrationError
 from dronekey.geometry.drone_spec import DroneSpecError
-from dronekey.sim_replay.frames import FrameSourceError, iter_frames
-from dronekey.sim_replay.presets import BACKGROUND_KINDS, FLIGHT_MODELS, LED_MODES, PRESETS, build_sequence
-from dronekey.sim_replay.sequence_io import (
-    ROTATION_ENCODINGS,
-    TRANSLATION_UNITS,
-    CocoPoseEncoding,
-    SequenceFormatError,
-    load_sequence,
-)
-from dronekey.sim_replay.writer import write_sequence
+from dronekey.sim_replay.drone_look import LED_MODES
+from dronekey.sim_replay.flight import FLIGHT_MODELS
+from dronekey.sim_replay.io.coco_pose import ROTATION_ENCODINGS, TRANSLATION_UNITS, CocoPoseEncoding
+from dronekey.sim_replay.io.frames import FrameSourceError, iter_frames
+from dronekey.sim_replay.io.render_output import write_sequence
+from dronekey.sim_replay.io.sequence_reader import load_sequence
+from dronekey.sim_replay.io.validation import SequenceFormatError
+from dronekey.sim_replay.presets import PRESETS
+from dronekey.sim_replay.synthetic_sequence import BACKGROUND_KINDS, build_sequence
 
 __all__ = ["main"]
 
@@ -270,7 +269,7 @@ def _render(args: argparse.Namespace) -> int:
             background=args.background,
             range_scale=args.range_scale,
         )
-    except (ValueError, OSError, ImportError) as exc:  # the presets' own checks (sizes, frames, folders)
+    except (ValueError, OSError, ImportError) as exc:  # build_sequence's own checks (sizes, frames, folders)
         raise UsageError(_cli_message(str(exc))) from None
     _check_output_folder(args.out)
     with tqdm(total=seq.n_frames, unit="frame", desc=seq.name, disable=None, leave=False) as bar:

@@ -3,7 +3,7 @@
 The presets script the drone's position and, separately, its attitude (``flight="scripted"``), so a
 scripted drone may slide sideways or hang level while accelerating. ``CoordinatedFlight`` keeps the
 scripted positions and replaces the attitude by the one a real quadcopter would have on that path
-(``flight="coordinated"`` in ``presets.build_sequence``, ``--flight coordinated`` in
+(``flight="coordinated"`` in ``synthetic_sequence.build_sequence``, ``--flight coordinated`` in
 ``dronekey-sim``).
 
 Frames and units: positions ``p`` are local North-East-Down (NED) metres, time in seconds, the body
@@ -62,8 +62,8 @@ import numpy as np
 __all__ = ["FLIGHT_MODELS", "GRAVITY_MPS2", "CoordinatedFlight", "finite_differences", "tilt_for_thrust"]
 
 GRAVITY_MPS2 = 9.81
-# ``flight`` of presets.build_sequence / --flight of dronekey-sim: the preset's own attitude script,
-# or the attitude of coordinated flight along the preset's positions.
+# ``flight`` of synthetic_sequence.build_sequence / --flight of dronekey-sim: the preset's own
+# attitude script, or the attitude of coordinated flight along the preset's positions.
 FLIGHT_MODELS = ("scripted", "coordinated")
 
 Position = Callable[[float], np.ndarray]

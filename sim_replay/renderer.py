@@ -18,9 +18,9 @@ import cv2
 import numpy as np
 
 from dronekey.geometry.camera import CameraModel
-
-from .annotations import HIDDEN, VISIBLE, DroneAnnotation
-from .mesh import EMISSIVE, PROP, DroneMesh, DroneStyle, segment_hits
+from dronekey.sim_replay.annotations import HIDDEN, VISIBLE, DroneAnnotation
+from dronekey.sim_replay.drone_look import DroneStyle
+from dronekey.sim_replay.mesh import EMISSIVE, PROP, DroneMesh, segment_hits
 
 __all__ = ["Lighting", "render_drone"]
 

@@ -34,10 +34,10 @@ from dronekey.geometry.crop import CropPolicy, crop_square, to_normalised
 from dronekey.geometry.drone_spec import load_spec
 from dronekey.geometry.rotations import ned_from_camera, rotation_from_euler_deg
 from dronekey.perception.localizer import LocalizerConfig, propose_rois
-
-from .annotations import HIDDEN
-from .backgrounds import TRAIN_PHOTOS, BackgroundSource, packaged_photos
-from .effects import (
+from dronekey.sim_replay.annotations import HIDDEN
+from dronekey.sim_replay.backgrounds import TRAIN_PHOTOS, BackgroundSource, packaged_photos
+from dronekey.sim_replay.drone_look import BodyShape, DroneStyle
+from dronekey.sim_replay.effects import (
     camera_response,
     draw_distractors,
     draw_edge_clutter,
@@ -45,8 +45,8 @@ from .effects import (
     jpeg_roundtrip,
     sensor_noise,
 )
-from .mesh import BodyShape, DroneStyle, build_mesh
-from .renderer import Lighting, render_drone
+from dronekey.sim_replay.mesh import build_mesh
+from dronekey.sim_replay.renderer import Lighting, render_drone
 
 __all__ = ["CropSample", "CropSampler", "SamplerConfig"]
 

@@ -3,7 +3,7 @@
 Looked up in this order for ``DIR/NAME.ext`` (or the folder ``DIR/NAME``):
 
 1. ``DIR/NAME.json``: a sequence JSON (docs/design.md §5.1) whose ``camera`` object holds the intrinsics,
-   read with ``sim_replay.sequence_io.load_sequence``;
+   read with ``sim_replay.io.sequence_reader.load_sequence``;
 2. ``DIR/NAME/camera.yaml`` (folders only), then ``DIR/camera.yaml``: an OpenCV calibration YAML.
 """
 
@@ -44,7 +44,7 @@ def sidecar_camera(path: Path) -> tuple[CameraModel, str] | None:
 
 
 def _camera_from_sequence(path: Path) -> CameraModel:
-    from dronekey.sim_replay.sequence_io import load_sequence
+    from dronekey.sim_replay.io.sequence_reader import load_sequence
 
     try:
         return load_sequence(path).camera

@@ -1,4 +1,4 @@
-"""``sim://<preset>``: a simulator sequence rendered on the fly (``sim_replay.presets``)."""
+"""``sim://<preset>``: a simulator sequence rendered on the fly (``sim_replay.synthetic_sequence``)."""
 
 from __future__ import annotations
 
@@ -28,9 +28,11 @@ class SimReader(FrameReader):
 
     def _build(self):
         try:
-            from dronekey.sim_replay.presets import build_sequence
+            from dronekey.sim_replay.synthetic_sequence import build_sequence
         except ImportError as exc:
-            raise SourceOpenError(f"sim:// sources need dronekey.sim_replay.presets: {exc}") from None
+            raise SourceOpenError(
+                f"sim:// sources need dronekey.sim_replay.synthetic_sequence: {exc}"
+            ) from None
         try:
             return build_sequence(self.preset, seed=self._settings.seed, frames=self._settings.frames)
         except (KeyError, ValueError) as exc:

@@ -55,8 +55,8 @@ def _cmd_keypoints(args: argparse.Namespace) -> int:
 
 
 def _load(json_path: Path, video: str | None):
-    from dronekey.sim_replay.frames import iter_frames
-    from dronekey.sim_replay.sequence_io import load_sequence
+    from dronekey.sim_replay.io.frames import iter_frames
+    from dronekey.sim_replay.io.sequence_reader import load_sequence
 
     if not json_path.is_file():
         raise _UsageError(f"sequence file not found: {json_path}")

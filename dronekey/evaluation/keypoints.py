@@ -49,7 +49,7 @@ def evaluate_keypoints(
 
     ``mirror_average`` as the daemon's pipeline runs the model by default (``KeypointModel``)."""
     from dronekey.perception.keypoint_model import KeypointModel
-    from dronekey.sim_replay.presets import build_sequence
+    from dronekey.sim_replay.synthetic_sequence import build_sequence
 
     model = KeypointModel(model_path, mirror_average=mirror_average)
     policy = CropPolicy(**{**model.metadata.get("crop_policy", {}), "input_size": model.input_size})

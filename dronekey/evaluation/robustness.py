@@ -146,7 +146,7 @@ def match_gate_m(t_true: np.ndarray) -> float:
 # ----------------------------------------------------------------------------- the matrix
 @dataclass(frozen=True)
 class MatrixEntry:
-    """One sequence of the matrix: what ``sim_replay.presets.build_sequence`` renders.
+    """One sequence of the matrix: what ``sim_replay.synthetic_sequence.build_sequence`` renders.
 
     preset : motion (``seq11``, ``seq12``, ``seq13``). seed : scene seed. style_seed : drone-look
     seed. leds : LED mode. background : background kind. range_scale : distance factor (1 near,
@@ -184,7 +184,7 @@ class MatrixEntry:
 
     def build(self):
         """The ``SyntheticSequence`` to render (nothing is rendered yet)."""
-        from dronekey.sim_replay.presets import build_sequence
+        from dronekey.sim_replay.synthetic_sequence import build_sequence
 
         return build_sequence(
             self.preset,
@@ -266,7 +266,9 @@ def plan_matrix(
         one, an empty axis, non-positive sizes or counts, or more than ``DRONE_FREE_SEED_OFFSET``
         drone sequences.
     """
-    from dronekey.sim_replay.presets import BACKGROUND_KINDS, LED_MODES, PRESETS
+    from dronekey.sim_replay.drone_look import LED_MODES
+    from dronekey.sim_replay.presets import PRESETS
+    from dronekey.sim_replay.synthetic_sequence import BACKGROUND_KINDS
 
     leds = _check_choices("leds", leds, LED_MODES)
     backgrounds = _check_choices("backgrounds", backgrounds, BACKGROUND_KINDS)
@@ -395,8 +397,8 @@ class Rendered:
 
 def _matches(json_path: Path, entry: MatrixEntry, expected_info: dict) -> bool:
     """Whether ``json_path`` (and its media) is the sequence ``entry`` asks for."""
-    from dronekey.sim_replay.frames import resolve_source
-    from dronekey.sim_replay.sequence_io import load_sequence
+    from dronekey.sim_replay.io.frames import resolve_source
+    from dronekey.sim_replay.io.sequence_reader import load_sequence
 
     if not json_path.is_file():
         return False
@@ -437,7 +439,7 @@ def render_matrix(
     """
     from tqdm import tqdm
 
-    from dronekey.sim_replay.writer import write_sequence
+    from dronekey.sim_replay.io.render_output import write_sequence
 
     built = [(e, e.build()) for e in entries]  # every entry checked before the first render
     todo = []
@@ -524,7 +526,7 @@ def score_sequence(
 
     Parameters
     ----------
-    seq : ``SequenceAnnotations`` (``sim_replay.sequence_io.load_sequence``); ``info.no_drone``
+    seq : ``SequenceAnnotations`` (``sim_replay.io.sequence_reader.load_sequence``); ``info.no_drone``
         marks a drone-free sequence.
     model_path : ONNX keypoint model; the shipped one by default.
     mirror_average : passed to the pipeline (the daemon's default).
@@ -535,7 +537,7 @@ def score_sequence(
     SequenceScores
     """
     from dronekey.pipeline import TrackingPipeline
-    from dronekey.sim_replay.frames import iter_frames
+    from dronekey.sim_replay.io.frames import iter_frames
 
     no_drone = bool(seq.info.get("no_drone", False))
     pipeline = TrackingPipeline(
@@ -850,7 +852,7 @@ def run_robustness(
     from tqdm import tqdm
 
     from dronekey.perception.keypoint_model import KeypointModel
-    from dronekey.sim_replay.sequence_io import load_sequence
+    from dronekey.sim_replay.io.sequence_reader import load_sequence
 
     bases = [TUNING_SEED if tuning else REPORTING_SEED] if seeds is None else list(seeds)
     matrix = {

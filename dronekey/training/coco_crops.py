@@ -8,7 +8,7 @@ trained here and one trained on renders read the same kind of input.
 
 Only what training needs is read from the JSON: each image's file and size, and per annotation the
 four keypoints (x, y, v) and the box (the keypoints' box when ``bbox`` is missing). No camera and no
-6DoF are needed, and the images may differ in size (``sequence_io.load_sequence`` is the reader
+6DoF are needed, and the images may differ in size (``sequence_reader.load_sequence`` is the reader
 for evaluation, where the camera matters).
 """
 

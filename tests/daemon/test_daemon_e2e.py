@@ -230,7 +230,7 @@ def test_all_outputs_run_and_stop_cleanly(tmp_path, dialect):
 
 def _render_h264_clip(folder: Path, frames: int) -> Path:
     """A simulator clip (seq13 at 960x540) transcoded to H.264 with PyAV, its camera beside it."""
-    from dronekey.sim_replay.presets import build_sequence
+    from dronekey.sim_replay.synthetic_sequence import build_sequence
 
     sequence = build_sequence("seq13", frames=frames, width=960, height=540)
     sequence.camera.save_yaml(folder / "camera.yaml")

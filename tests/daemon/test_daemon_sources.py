@@ -252,7 +252,7 @@ def test_make_reader_picks_the_reader(tmp_path, media):
 
 def test_sidecar_calibration_beside_the_video(tmp_path, media):
     from dronekey.sim_replay.annotations import SequenceAnnotations
-    from dronekey.sim_replay.sequence_io import save_sequence
+    from dronekey.sim_replay.io.sequence_writer import save_sequence
 
     clip = tmp_path / "seq.mp4"
     clip.write_bytes((media / "h264.mp4").read_bytes())

@@ -6,8 +6,8 @@ import pytest
 from daemon_media import write_untrained_model
 
 from dronekey.evaluation.cli import main
-from dronekey.sim_replay.presets import build_sequence
-from dronekey.sim_replay.writer import write_sequence
+from dronekey.sim_replay.io.render_output import write_sequence
+from dronekey.sim_replay.synthetic_sequence import build_sequence
 
 
 @pytest.fixture(scope="module")

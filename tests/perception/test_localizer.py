@@ -10,9 +10,11 @@ from dronekey.geometry.drone_spec import load_spec
 from dronekey.perception.localizer import LocalizerConfig, box_from_keypoints, box_from_pose
 from dronekey.pipeline import TrackingPipeline
 from dronekey.sim_replay.backgrounds import landscape, sky, urban
-from dronekey.sim_replay.mesh import DroneStyle, build_mesh
-from dronekey.sim_replay.presets import build_sequence, preset_camera
+from dronekey.sim_replay.drone_look import DroneStyle
+from dronekey.sim_replay.mesh import build_mesh
+from dronekey.sim_replay.presets import preset_camera
 from dronekey.sim_replay.renderer import Lighting, render_drone
+from dronekey.sim_replay.synthetic_sequence import build_sequence
 from dronekey.types import Frame
 
 SPEC = load_spec("mini2")

@@ -8,7 +8,8 @@ from dronekey.geometry.crop import CropPolicy, from_normalised
 from dronekey.geometry.drone_spec import load_spec
 from dronekey.geometry.rotations import rotation_from_euler_deg
 from dronekey.sim_replay.annotations import HIDDEN, VISIBLE
-from dronekey.sim_replay.mesh import DroneStyle, build_mesh, segment_hits
+from dronekey.sim_replay.drone_look import DroneStyle
+from dronekey.sim_replay.mesh import build_mesh, segment_hits
 from dronekey.sim_replay.renderer import Lighting, render_drone
 from dronekey.sim_replay.sampler import CropSampler, SamplerConfig
 

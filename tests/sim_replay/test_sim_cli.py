@@ -21,8 +21,8 @@ from scipy.spatial.transform import Rotation
 from dronekey.geometry.camera import CameraModel
 from dronekey.geometry.rotations import geodesic_angle_deg
 from dronekey.sim_replay.cli import main
-from dronekey.sim_replay.frames import iter_frames
-from dronekey.sim_replay.sequence_io import load_sequence
+from dronekey.sim_replay.io.frames import iter_frames
+from dronekey.sim_replay.io.sequence_reader import load_sequence
 
 SMALL = ["--width", "480", "--height", "270"]
 

@@ -12,13 +12,14 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from dronekey.geometry.rotations import rotation_from_euler_deg
-from dronekey.sim_replay import presets
+from dronekey.sim_replay import synthetic_sequence
 from dronekey.sim_replay.backgrounds import HELD_OUT_PHOTOS, packaged_photos
 from dronekey.sim_replay.cli import main
+from dronekey.sim_replay.drone_look import DroneLook
 from dronekey.sim_replay.flight import CoordinatedFlight, finite_differences, tilt_for_thrust
-from dronekey.sim_replay.frames import iter_frames
-from dronekey.sim_replay.presets import DroneLook, build_sequence, style_seed_for
-from dronekey.sim_replay.sequence_io import load_sequence
+from dronekey.sim_replay.io.frames import iter_frames
+from dronekey.sim_replay.io.sequence_reader import load_sequence
+from dronekey.sim_replay.synthetic_sequence import build_sequence, style_seed_for
 
 W, H = 480, 270
 SMALL = ["--width", str(W), "--height", str(H)]
@@ -260,7 +261,7 @@ def test_held_out_photo_backgrounds():
 
 
 def test_photos_without_the_packages_is_a_clear_error(monkeypatch, tmp_path, capsys):
-    monkeypatch.setattr(presets, "packaged_photos", lambda names: [])
+    monkeypatch.setattr(synthetic_sequence, "packaged_photos", lambda names: [])
     with pytest.raises(ImportError, match=r"needs the held-out packaged photos .*\(pip install scikit-image"):
         build_sequence("seq12", background="photos")
     assert run_cli(["--preset", "seq12", "--out", str(tmp_path), "--background", "photos"]) == 2

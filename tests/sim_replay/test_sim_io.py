@@ -21,17 +21,15 @@ from dronekey.geometry.camera import CameraModel
 from dronekey.geometry.drone_spec import DroneSpec, load_spec
 from dronekey.geometry.rotations import geodesic_angle_deg, rotation_from_euler_deg
 from dronekey.sim_replay.annotations import HIDDEN, VISIBLE, DroneAnnotation, FrameRecord
-from dronekey.sim_replay.frames import FrameSourceError, iter_frames
-from dronekey.sim_replay.sequence_io import (
-    CocoPoseEncoding,
-    SequenceFormatError,
-    dumps_sequence,
-    load_sequence,
-    save_sequence,
-)
-from dronekey.sim_replay.writer import video_fourcc, write_sequence
+from dronekey.sim_replay.io.coco_pose import CocoPoseEncoding
+from dronekey.sim_replay.io.frames import FrameSourceError, iter_frames
+from dronekey.sim_replay.io.render_output import video_fourcc, write_sequence
+from dronekey.sim_replay.io.sequence_reader import load_sequence
+from dronekey.sim_replay.io.sequence_writer import dumps_sequence, save_sequence
+from dronekey.sim_replay.io.validation import SequenceFormatError
 
 WIDTH, HEIGHT = 320, 180
+DATA = Path(__file__).resolve().parent / "data"
 
 
 def _camera() -> CameraModel:
@@ -46,7 +44,7 @@ class _Rendered:
 
 @dataclass
 class DotSequence:
-    """A minimal renderer with the interface of ``presets.build_sequence``'s result."""
+    """A minimal renderer with the interface of ``synthetic_sequence.build_sequence``'s result."""
 
     n_frames: int = 6
     name: str = "dots"
@@ -285,11 +283,45 @@ def _mutated(tmp_path: Path, mutate) -> Path:
             r"frame_index: must be an integer, got bool",
         ),
         (lambda d: d["drone"].pop("keypoints_3d"), r"drone: missing key 'keypoints_3d'"),
+        (lambda d: d["info"].__setitem__("fps", 0), r"info\.fps: must be a positive number, got int 0"),
+        (lambda d: d["camera"].__setitem__("dist", [1, 2, 3]), r"camera: dist must have 4, 5, 8, 12 or 14"),
+        (lambda d: d["categories"][0]["keypoints"].pop(), r"categories\[0\].keypoints: DroneKey needs 4"),
+        (lambda d: d.__setitem__("images", "x"), r"dots.json: images: must be a list, got str \"x\""),
+        (lambda d: d["images"][2].__setitem__("id", 1), r"images\[2\].id: duplicate image id 1"),
+        (lambda d: d["images"][2].__setitem__("frame_index", 1), r"images: frame_index values repeat"),
+        (lambda d: d["images"][3].__setitem__("width", 640), r"images\[3\]: image size 640x180 differs"),
+        (lambda d: d["annotations"][1].pop("bbox"), r"annotations\[1\]: missing key 'bbox'"),
     ],
 )
 def test_malformed_json_names_the_key_and_value(tmp_path, mutate, message):
     with pytest.raises(SequenceFormatError, match=message):
         load_sequence(_mutated(tmp_path, mutate))
+
+
+def test_tolerated_variants_read_as_before(tmp_path):
+    """What the reader has always let through: integers written as floats, string image ids, keys it
+    does not read (anywhere, and categories after the first naming keypoints), and a file's camera
+    object when the caller passes the camera (it is then not read at all)."""
+
+    def variants(d):
+        d["info"] = {"z": 1, **d["info"]}  # key order is kept
+        d["camera"]["width"], d["images"][3]["frame_index"], d["images"][3]["id"] = 320.0, 3.0, 3.0
+        for image in d["images"]:
+            image["id"] = f"img{image['id']:g}"
+        for ann in d["annotations"]:
+            ann["image_id"], ann["extra"] = f"img{ann['image_id']}", {"any": [None]}
+        d["categories"].append(5)
+        d["unread"] = True
+
+    reference = load_sequence(write_sequence(DotSequence(), tmp_path).json_path)
+    seq = load_sequence(_mutated(tmp_path, variants))
+    assert list(seq.info) == ["z", "sequence", "generator", "seed", "fps"]
+    assert [(r.index, r.t_ns, r.drone is None) for r in seq.frames] == [
+        (r.index, r.t_ns, r.drone is None) for r in reference.frames
+    ]
+    assert np.array_equal(seq.frames[3].drone.rotation, reference.frames[3].drone.rotation)
+    broken = _mutated(tmp_path, lambda d: d["camera"].__setitem__("K", "unread"))
+    assert load_sequence(broken, camera=_camera()).camera is not None
 
 
 @pytest.mark.parametrize(
@@ -430,3 +462,26 @@ def test_2dronekey_keypoints_only_file(tmp_path):
     assert seq.drone_model == "air2s" and len(seq.annotated()) == 5
     assert not any(r.drone.has_pose for r in seq.annotated())
     assert seq.annotated()[0].drone.visibility.tolist() == [2, 2, 1, 2]
+
+
+# ---------------------------------------------------------------------------------- files written before
+
+
+def test_a_file_written_by_the_earlier_writer_reads_and_rewrites_byte_for_byte():
+    """``data/dots.json``: ``DotSequence(n_frames=4)`` written as images by the writer of commit b0d9921
+    (``sim_replay/writer.py`` and ``sequence_io.py``, before the ``sim_replay.io`` package)."""
+    path = DATA / "dots.json"
+    seq = load_sequence(path)
+    assert (seq.name, seq.drone_model, seq.fps, seq.base_dir) == ("dots", "mini2", 30.0, DATA)
+    assert seq.info == {"sequence": "dots", "generator": "tests", "seed": 0, "fps": 30.0}
+    assert np.array_equal(seq.camera.K, _camera().K) and np.array_equal(seq.camera.dist, _camera().dist)
+    truth = DotSequence(n_frames=4)
+    for i, rec in enumerate(seq.frames):
+        assert (rec.index, rec.t_ns, rec.file_name) == (i, round(i * 1e9 / 30), f"dots/{i:06d}.png")
+        if i == 2:
+            assert rec.drone is None
+            continue
+        R, t = truth.pose(i)
+        assert np.array_equal(rec.drone.rotation, R) and np.array_equal(rec.drone.translation, t)
+        assert rec.drone.visibility.tolist() == [VISIBLE, VISIBLE, HIDDEN, VISIBLE]
+    assert dumps_sequence(seq) == path.read_text(encoding="utf-8")

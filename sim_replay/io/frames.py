@@ -154,7 +154,7 @@ def iter_frames(sequence: SequenceAnnotations, source: str | Path | None = None)
 
     Parameters
     ----------
-    sequence : annotations, e.g. from ``sequence_io.load_sequence``.
+    sequence : annotations, e.g. from ``sequence_reader.load_sequence``.
     source : video file or image folder; default: derived from the records (see ``resolve_source``).
 
     Raises

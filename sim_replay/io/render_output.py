@@ -33,7 +33,7 @@ import numpy as np
 from dronekey.geometry.camera import CalibrationError, CameraModel
 from dronekey.geometry.drone_spec import DroneSpec
 from dronekey.sim_replay.annotations import FrameRecord, SequenceAnnotations
-from dronekey.sim_replay.sequence_io import dumps_sequence
+from dronekey.sim_replay.io.sequence_writer import dumps_sequence
 
 __all__ = ["RenderedFrameLike", "RenderedSequenceLike", "WrittenSequence", "video_fourcc", "write_sequence"]
 
@@ -50,7 +50,7 @@ class RenderedFrameLike(Protocol):
 
 
 class RenderedSequenceLike(Protocol):
-    """What the writer needs from a rendered sequence (``presets.build_sequence`` returns one)."""
+    """What the writer needs from a rendered sequence (``synthetic_sequence.build_sequence`` returns one)."""
 
     name: str
     camera: CameraModel
