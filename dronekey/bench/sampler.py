@@ -12,11 +12,15 @@ import argparse
 import json
 import time
 
+from dronekey.bench.arguments import positive_int
+
 __all__ = ["add_sampler_command", "time_sampler"]
 
 
 def time_sampler(samples: int, seed: int = 0, warmup: int = 20) -> dict:
     """Render ``samples`` crops after ``warmup`` untimed ones; rates and the share with a drone."""
+    # Imported when timed, not when registered: every dronekey-bench process registers this command,
+    # and the daemon's benchmarks report the process's resident memory.
     from dronekey.sim_replay.sampler import CropSampler
 
     sampler = CropSampler(seed=seed)
@@ -51,8 +55,6 @@ def _run(args: argparse.Namespace) -> int:
 
 def add_sampler_command(subparsers) -> None:
     """Register ``sampler``: rendered training crops per second on one core."""
-    from dronekey.bench.cli import _positive_int
-
     parser = subparsers.add_parser(
         "sampler",
         help="training crops rendered per second (one core)",
@@ -60,7 +62,7 @@ def add_sampler_command(subparsers) -> None:
         "128 px crops per second, and CPU milliseconds per crop (least disturbed by other load). "
         "Training needs batch / step-time crops per second from its DataLoader workers.",
     )
-    parser.add_argument("--samples", type=_positive_int, default=500, help="timed samples (default 500)")
+    parser.add_argument("--samples", type=positive_int, default=500, help="timed samples (default 500)")
     parser.add_argument("--seed", type=int, default=0, help="sampler seed (default 0)")
     parser.add_argument("--json", action="store_true", help="print JSON instead of a line")
     parser.set_defaults(handler=_run)

@@ -1,0 +1,83 @@
+"""What a benchmark run is about: the video, and the daemon settings a benchmark may override."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from dronekey.daemon.bench.errors import BenchError
+from dronekey.daemon.config.daemon_config import DaemonConfig
+from dronekey.daemon.config.errors import ConfigError
+from dronekey.daemon.config.loading import load_config
+from dronekey.perception.keypoint_model import default_model_path
+
+__all__ = ["BenchSetup"]
+
+
+@dataclass(frozen=True)
+class BenchSetup:
+    """What a benchmark run is about: the source and the daemon settings it may override.
+
+    source : video file (looped). calib, model : files (default: beside the video, the shipped
+    model). decode_threads, model_threads : override ``source.decode_threads`` and ``model.threads``.
+    """
+
+    source: Path
+    calib: Path | None = None
+    model: Path | None = None
+    decode_threads: int | None = None
+    model_threads: int | None = None
+
+    def check(self) -> None:
+        """Raise ``BenchError`` naming the first missing input file."""
+        if not self.source.is_file():
+            raise BenchError(f"--source: no such file: {self.source}")
+        if self.calib is not None and not self.calib.is_file():
+            raise BenchError(f"--calib: no such file: {self.calib}")
+        if self.model is not None and not self.model.is_file():
+            raise BenchError(f"--model: no such file: {self.model}")
+        if self.model is None and not default_model_path().is_file():
+            raise BenchError(
+                f"the shipped model {default_model_path()} is not built yet; pass --model FILE "
+                "(an ONNX file written by dronekey-export)"
+            )
+
+    def config(
+        self, frames: int, outputs: tuple[Path, int] | None = None, realtime: bool = False
+    ) -> DaemonConfig:
+        """The daemon configuration: defaults, the source looping and stopping after ``frames``
+        (paced at its frame rate with ``realtime``) and, with ``outputs = (mcap_dir, udp_port)``,
+        every output on with local endpoints (else every output off)."""
+        overrides = {
+            "source.uri": (str(self.source), "--source"),
+            "source.loop": (True, "loop"),
+            "source.realtime": (realtime, "realtime"),
+            "source.max_frames": (frames, "--frames"),
+            "log.level": ("WARNING", "log"),
+        }
+        optional = {
+            "camera.calibration": (self.calib, "--calib"),
+            "model.path": (self.model, "--model"),
+            "source.decode_threads": (self.decode_threads, "--decode-threads"),
+            "model.threads": (self.model_threads, "--model-threads"),
+        }
+        overrides.update(
+            {key: (str(v) if isinstance(v, Path) else v, flag) for key, (v, flag) in optional.items() if v}
+        )
+        if outputs is not None:
+            mcap_dir, udp_port = outputs
+            overrides.update(
+                {
+                    "zenoh.mode": ("peer", "zenoh"),
+                    "zenoh.scouting": (False, "zenoh"),
+                    "zenoh.listen": (["tcp/127.0.0.1:0"], "zenoh"),
+                    "mavlink.url": (f"udpout:127.0.0.1:{udp_port}", "mavlink"),
+                    "mcap.dir": (str(mcap_dir), "mcap"),
+                }
+            )
+        for output in ("zenoh", "mavlink", "mcap"):
+            overrides[f"{output}.enabled"] = (outputs is not None, output)
+        try:
+            return load_config(None, overrides)
+        except ConfigError as exc:
+            raise BenchError(str(exc).splitlines()[0]) from None

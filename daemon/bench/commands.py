@@ -1,0 +1,180 @@
+"""The ``pipeline`` and ``soak`` subcommands of ``dronekey-bench``: parsers, tables, exit statuses.
+
+Registered through the ``dronekey.bench`` entry points (``pyproject.toml``). Errors are one line on
+stderr with exit status 1 (130 / 143 after SIGINT / SIGTERM); results go to stdout, a table or JSON.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from dronekey.bench.arguments import positive_float, positive_int
+from dronekey.daemon.bench.bench_setup import BenchSetup
+from dronekey.daemon.bench.daemon_run import signal_monitor
+from dronekey.daemon.bench.errors import BenchError, BenchInterruptedError
+from dronekey.daemon.bench.pipeline import MAX_LATENCY_FRAMES, run_pipeline_bench
+from dronekey.daemon.bench.soak import run_soak
+from dronekey.daemon.sources.opencv_readers import quiet_native_logs
+
+__all__ = ["add_pipeline_command", "add_soak_command"]
+
+PIPELINE_TABLE_KEYS = (
+    "frames",
+    "fps",
+    "latency_ms_p50",
+    "latency_ms_p99",
+    "decode_fps",
+    "model_fps",
+    "efficiency",
+    "cpu_percent",
+    "rss_mb",
+)
+SOAK_TABLE_KEYS = (
+    "frames",
+    "seconds",
+    "fps",
+    "rss_mb_start",
+    "rss_mb_end",
+    "rss_growth_percent",
+    "rss_mb_peak",
+)
+
+
+def _table(report: dict, keys: tuple[str, ...], width: int) -> str:
+    """One ``key value`` line per key, keys left-aligned in ``width`` characters."""
+    return "\n".join(f"{key:{width}s} {report[key]}" for key in keys)
+
+
+def _setup(args: argparse.Namespace) -> BenchSetup:
+    return BenchSetup(args.source, args.calib, args.model, args.decode_threads, args.model_threads)
+
+
+def _run_pipeline_command(args: argparse.Namespace) -> int:
+    quiet_native_logs(verbose=False)  # FFmpeg's and OpenCV's own messages stay off stderr, as in the daemon
+    signals = signal_monitor(install=True)
+    try:
+        report = run_pipeline_bench(
+            _setup(args),
+            frames=args.frames,
+            latency_frames=args.latency_frames,
+            warmup=args.warmup,
+            signals=signals,
+        )
+    except BenchError as exc:
+        print(f"dronekey-bench pipeline: error: {exc}", file=sys.stderr)
+        return exc.exit_code if isinstance(exc, BenchInterruptedError) else 1
+    finally:
+        signals.finished()
+    print(json.dumps(report, indent=2) if args.json else _table(report, PIPELINE_TABLE_KEYS, 16))
+    return 0
+
+
+def _run_soak_command(args: argparse.Namespace) -> int:
+    quiet_native_logs(verbose=False)
+    signals = signal_monitor(install=True)
+    try:
+        report = run_soak(
+            _setup(args), frames=args.frames, warmup=args.warmup, sample_s=args.sample_s, signals=signals
+        )
+    except BenchError as exc:
+        print(f"dronekey-bench soak: error: {exc}", file=sys.stderr)
+        return exc.exit_code if isinstance(exc, BenchInterruptedError) else 1
+    finally:
+        signals.finished()
+    report["max_growth_percent"] = args.max_growth
+    report["ok"] = report["rss_growth_percent"] <= args.max_growth
+    print(json.dumps(report, indent=2) if args.json else _table(report, SOAK_TABLE_KEYS, 20))
+    if report["stopped_early"]:
+        print(f"dronekey-bench soak: {report['stopped_early']} (figures up to there)", file=sys.stderr)
+        return report["exit_code"]
+    if not report["ok"]:
+        print(
+            f"dronekey-bench soak: RSS grew {report['rss_growth_percent']:.2f}% (> {args.max_growth}%)",
+            file=sys.stderr,
+        )
+        return 1
+    return 0
+
+
+def _common_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--source", type=Path, required=True, help="video file (looped as needed)")
+    parser.add_argument(
+        "--calib", type=Path, default=None, help="calibration YAML (default: the one beside the video)"
+    )
+    parser.add_argument(
+        "--model", type=Path, default=None, help="ONNX keypoint model (default: the shipped one)"
+    )
+    parser.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    parser.add_argument(
+        "--decode-threads",
+        type=positive_int,
+        default=None,
+        help="FFmpeg decoder threads (default: the daemon's, every core but one)",
+    )
+    parser.add_argument(
+        "--model-threads",
+        type=positive_int,
+        default=None,
+        help="ONNX Runtime intra-op threads (default: the daemon's, 1)",
+    )
+
+
+def add_pipeline_command(subparsers) -> None:
+    """Register ``pipeline``: the daemon end to end against its decode and model ceilings."""
+    parser = subparsers.add_parser(
+        "pipeline",
+        help="the daemon end to end (all outputs on) against its decode and model ceilings",
+        description="Run the daemon's pipeline on a video with every output on (Zenoh on 127.0.0.1, "
+        "MAVLink to a local UDP port, MCAP to a temporary folder) and report end-to-end fps (flat "
+        "out), latency p50/p99 (paced at the clip's frame rate), decode-only and model-only fps, "
+        "efficiency = fps / min(decode_fps, model_fps), CPU and peak RSS.",
+    )
+    _common_arguments(parser)
+    parser.add_argument(
+        "--frames",
+        type=positive_int,
+        default=600,
+        help="frames of the decode and flat-out passes (default 600)",
+    )
+    parser.add_argument(
+        "--latency-frames",
+        type=positive_int,
+        default=300,
+        help=f"frames of the paced latency pass, <= {MAX_LATENCY_FRAMES} (default 300: 10 s at 30 fps)",
+    )
+    parser.add_argument(
+        "--warmup",
+        type=positive_int,
+        default=30,
+        help="first frames of each daemon pass not measured (default 30)",
+    )
+    parser.set_defaults(handler=_run_pipeline_command)
+
+
+def add_soak_command(subparsers) -> None:
+    """Register ``soak``: the daemon looping over a video; resident memory over time."""
+    parser = subparsers.add_parser(
+        "soak",
+        help="loop a video through the daemon (all outputs on) and report RSS growth",
+        description="Loop a video flat out through the daemon's pipeline with every output on for "
+        "--frames frames, sample the resident set over time and report it at the start (after "
+        "--warmup frames) and the end. Exit status 1 when it grew more than --max-growth percent.",
+    )
+    _common_arguments(parser)
+    parser.add_argument("--frames", type=positive_int, required=True, help="frames to run (e.g. 20000)")
+    parser.add_argument(
+        "--warmup",
+        type=positive_int,
+        default=1000,
+        help="frames before the start figure; cover a loop of the clip (default 1000)",
+    )
+    parser.add_argument(
+        "--sample-s", type=positive_float, default=5.0, help="seconds between RSS samples (default 5)"
+    )
+    parser.add_argument(
+        "--max-growth", type=float, default=5.0, help="allowed RSS growth, percent (default 5)"
+    )
+    parser.set_defaults(handler=_run_soak_command)

@@ -1,0 +1,94 @@
+"""The daemon's pipeline behind a frame counter that stamps wall clock, CPU time and memory."""
+
+from __future__ import annotations
+
+import math
+import resource
+import sys
+import time
+from collections import Counter
+from typing import NamedTuple
+
+import psutil
+from tqdm import tqdm
+
+from dronekey.daemon.app import default_pipeline_factory
+from dronekey.daemon.bench.errors import BenchError
+
+__all__ = ["MIB", "Meter", "Stamp", "peak_rss_mb"]
+
+MIB = float(1 << 20)
+
+
+def peak_rss_mb() -> float:
+    """Peak resident set of this process so far, MiB."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024 / MIB  # ru_maxrss is KiB on Linux
+
+
+class Stamp(NamedTuple):
+    """Where a run stood: frames processed, wall clock (s), process CPU time (s), resident set (MiB)."""
+
+    frames: int
+    wall_s: float
+    cpu_s: float
+    rss_mb: float
+
+
+class Meter:
+    """The daemon's pipeline behind a pipeline factory that counts frames and stamps a window.
+
+    ``process`` forwards to ``TrackingPipeline.process`` and stamps (``Stamp``) the end of frame
+    ``warmup`` (``start``) and of the last frame (``end``); with ``rss`` the stamps hold the resident
+    set and every 100th frame is stamped too (``last``, what an interrupted soak reports).
+    """
+
+    def __init__(self, frames: int, warmup: int, desc: str, rss: bool = False) -> None:
+        self.total = frames
+        self.warmup = warmup
+        self.frames = 0
+        self.modes: Counter[str] = Counter()
+        self.start: Stamp | None = None
+        self.end: Stamp | None = None
+        self.last: Stamp | None = None
+        self.pipeline = None
+        self._rss = rss
+        self._process = psutil.Process()
+        self._bar = tqdm(total=frames, desc=desc, unit="frame", file=sys.stderr, leave=False)
+
+    def factory(self, camera, config):
+        """``DaemonApp``'s pipeline factory: the daemon's default pipeline, metered."""
+        self.pipeline = default_pipeline_factory(camera, config)
+        return self
+
+    def info(self) -> dict:
+        return self.pipeline.info()
+
+    def process(self, frame):
+        output = self.pipeline.process(frame)
+        self.frames += 1
+        self.modes[output.mode] += 1
+        if self.frames == self.warmup:
+            self.start = self._stamp()
+        if self.frames == self.total:
+            self.end = self._stamp()
+        elif self._rss and self.frames % 100 == 0:
+            self.last = self._stamp()
+        self._bar.update(1)
+        return output
+
+    def _stamp(self) -> Stamp:
+        rss = self._process.memory_info().rss / MIB if self._rss else math.nan
+        return Stamp(self.frames, time.perf_counter(), time.process_time(), rss)
+
+    def close(self) -> None:
+        self._bar.close()
+
+    def window(self) -> tuple[int, float, float]:
+        """Frames, wall seconds and CPU seconds from the end of warm-up to ``end``."""
+        if self.start is None or self.end is None:
+            raise BenchError(f"the daemon stopped after {self.frames} of {self.total} frames")
+        return (
+            self.end.frames - self.start.frames,
+            self.end.wall_s - self.start.wall_s,
+            self.end.cpu_s - self.start.cpu_s,
+        )

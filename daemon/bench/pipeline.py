@@ -1,0 +1,176 @@
+"""``dronekey-bench pipeline``: the daemon end to end against its decode and model ceilings.
+
+Four passes over the same file, one report:
+
+1. *decode*: the daemon's reader for the file alone (same decoder threads), flat out -> ``decode_fps``;
+2. *flat out*: the daemon with the source unpaced (back-pressure, no drops) -> ``fps`` and
+   ``cpu_percent`` (process CPU time over wall time; 100 = one core busy; ``details`` also gives the
+   CPU milliseconds per frame, the figure least disturbed by other load on the machine);
+3. *paced*: the daemon with ``source.realtime`` (frames released at the clip's frame rate, as a camera
+   delivers them) -> ``latency_ms_p50`` / ``latency_ms_p99``, from the frame leaving the decoder to
+   its update being published, of the slowest output (as the daemon's status message reports it);
+4. *model*: ``KeypointModel.inference`` alone at batch 1 and the model's input size, with the
+   pipeline's intra-op threads -> ``model_fps``.
+
+``efficiency = fps / min(decode_fps, model_fps)``; ``rss_mb`` is the peak resident set of the process
+over all passes (MiB, as every ``*_mb`` figure here). The first ``warmup`` frames of each daemon
+pass (ONNX Runtime's first runs, the Zenoh session opening) are left out of its figures. The source
+loops, so ``frames`` may exceed the clip's length.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import sys
+import time
+
+import numpy as np
+import psutil
+from tqdm import tqdm
+
+from dronekey.bench.model_latency import time_model
+from dronekey.daemon.app import DaemonApp
+from dronekey.daemon.bench.bench_setup import BenchSetup
+from dronekey.daemon.bench.daemon_run import check_signals, local_endpoints, run_daemon, signal_monitor
+from dronekey.daemon.bench.errors import BenchError
+from dronekey.daemon.bench.meter import Meter, peak_rss_mb
+from dronekey.daemon.signals import SignalMonitor
+from dronekey.daemon.sources import FrameReader, SourceOpenError, make_reader
+
+__all__ = ["MAX_LATENCY_FRAMES", "measure_decode", "run_pipeline_bench"]
+
+LOG = logging.getLogger(__name__)
+MAX_LATENCY_FRAMES = 2000  # SinkStats keeps the last 2048 latencies
+
+
+def measure_decode(
+    setup: BenchSetup, frames: int, signals: SignalMonitor | None = None
+) -> tuple[float, FrameReader]:
+    """Frames per second of the daemon's reader for the source alone (same settings, flat out,
+    looping), and the reader (closed: its resolution and decoder threads)."""
+    reader = make_reader(setup.config(frames).source)
+    try:
+        reader.open()
+    except SourceOpenError as exc:
+        raise BenchError(f"--source: {exc}") from None
+    try:
+        done = 0
+        start = time.perf_counter()
+        with tqdm(total=frames, desc="decode", unit="frame", file=sys.stderr, leave=False) as bar:
+            while done < frames:
+                if signals is not None:
+                    check_signals(signals, done)
+                result = reader.read()
+                if result.bgr is None:
+                    if done == 0 or not result.ended:
+                        raise BenchError(f"--source: {setup.source} stopped delivering frames after {done}")
+                    reader.close()
+                    reader.open()
+                    continue
+                done += 1
+                bar.update(1)
+        return frames / (time.perf_counter() - start), reader
+    finally:
+        reader.close()
+
+
+def _latency(app: DaemonApp, warmup: int) -> tuple[float, float, dict]:
+    """Worst p50 and p99 over the outputs (decoded -> published, after ``warmup`` updates), and per output."""
+    per_sink = {}
+    for name, worker in app.outputs.items():
+        stats = worker.stats
+        values = np.fromiter(stats.latencies_ms, dtype=np.float64)
+        keep = max(0, stats.published - warmup)
+        values = values[len(values) - min(keep, len(values)) :]
+        p50, p99 = (
+            (float(np.percentile(values, 50)), float(np.percentile(values, 99)))
+            if values.size
+            else (math.nan,) * 2
+        )
+        per_sink[name] = {
+            "published": stats.published,
+            "dropped": stats.dropped,
+            "errors": stats.errors,
+            "latency_ms_p50": round(p50, 2),
+            "latency_ms_p99": round(p99, 2),
+        }
+    worst50 = max((s["latency_ms_p50"] for s in per_sink.values()), default=math.nan)
+    worst99 = max((s["latency_ms_p99"] for s in per_sink.values()), default=math.nan)
+    return worst50, worst99, per_sink
+
+
+def run_pipeline_bench(
+    setup: BenchSetup,
+    *,
+    frames: int = 600,
+    latency_frames: int = 300,
+    warmup: int = 30,
+    model_runs: int = 500,
+    signals: SignalMonitor | None = None,
+) -> dict:
+    """The four passes of ``dronekey-bench pipeline`` (module docstring); returns the report.
+
+    ``signals``: the command's ``SignalMonitor`` (default: a fresh one, not installed).
+    """
+    setup.check()
+    for name, n in (("--frames", frames), ("--latency-frames", latency_frames)):
+        if n <= warmup:
+            raise BenchError(f"{name} ({n}) must exceed --warmup ({warmup})")
+    if latency_frames > MAX_LATENCY_FRAMES:
+        raise BenchError(f"--latency-frames must be <= {MAX_LATENCY_FRAMES}, got {latency_frames}")
+
+    LOG.info("decode pass: %d frames", frames)
+    signals = signals or signal_monitor()
+    decode_fps, reader = measure_decode(setup, frames, signals)
+
+    LOG.info("flat-out pass: %d frames", frames)
+    flat = Meter(frames, warmup, "flat out")
+    with local_endpoints() as outputs:
+        flat_app = run_daemon(setup.config(frames, outputs), flat, signals)
+    n, wall_s, cpu_s = flat.window()
+    fps = n / wall_s
+
+    LOG.info("paced pass: %d frames at the clip's frame rate", latency_frames)
+    paced = Meter(latency_frames, warmup, "paced")
+    with local_endpoints() as outputs:
+        paced_app = run_daemon(setup.config(latency_frames, outputs, realtime=True), paced, signals)
+    p50, p99, per_sink = _latency(paced_app, warmup)
+    pn, pwall_s, pcpu_s = paced.window()
+
+    keypoints = flat.pipeline.model
+    LOG.info("model pass: %d runs", model_runs)
+    model_fps = float(
+        time_model(keypoints.path, runs=model_runs, warmup=20, threads=keypoints.threads)["fps"]
+    )
+
+    return {
+        "frames": n,
+        "fps": round(fps, 2),
+        "latency_ms_p50": round(p50, 2),
+        "latency_ms_p99": round(p99, 2),
+        "decode_fps": round(decode_fps, 2),
+        "model_fps": round(model_fps, 1),
+        "efficiency": round(fps / min(decode_fps, model_fps), 3),
+        "cpu_percent": round(100.0 * cpu_s / wall_s, 1),
+        "rss_mb": round(peak_rss_mb(), 1),
+        "details": {
+            "source": str(setup.source),
+            "resolution": list(reader.resolution) if reader.resolution else None,
+            "decode_threads": getattr(reader, "decode_threads", None),
+            "model": str(keypoints.path),
+            "model_input": keypoints.input_size,
+            "model_threads": keypoints.threads,
+            "cpus": psutil.cpu_count(),
+            "warmup_frames": warmup,
+            "modes": dict(flat.modes),
+            "cpu_ms_per_frame": round(1e3 * cpu_s / n, 2),
+            "dropped_by_outputs": {name: w.stats.dropped for name, w in flat_app.outputs.items()},
+            "paced": {
+                "frames": pn,
+                "fps": round(pn / pwall_s, 2),
+                "cpu_percent": round(100.0 * pcpu_s / pwall_s, 1),
+                "outputs": per_sink,
+            },
+        },
+    }
