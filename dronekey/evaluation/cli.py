@@ -16,7 +16,25 @@ import argparse
 import json
 import logging
 import sys
+from collections.abc import Iterator
 from pathlib import Path
+
+from dronekey.evaluation.keypoints import evaluate_keypoints
+from dronekey.evaluation.pose import evaluate_sequence, table_vi, weighted_average
+from dronekey.evaluation.pose_plot import plot_sequence
+from dronekey.evaluation.robustness.matrix import (
+    BACKGROUNDS,
+    DEFAULT_FRAMES,
+    DRONE_FREE_SEQUENCES,
+    QUICK_BACKGROUNDS,
+    QUICK_DRONE_FREE,
+    QUICK_FRAMES,
+)
+from dronekey.evaluation.robustness.run import run_robustness
+from dronekey.sim_replay.annotations import SequenceAnnotations
+from dronekey.sim_replay.io.frames import SequenceFrame, iter_frames
+from dronekey.sim_replay.io.sequence_reader import load_sequence
+from dronekey.sim_replay.presets import PRESETS
 
 log = logging.getLogger("dronekey.eval")
 
@@ -28,9 +46,6 @@ class _UsageError(Exception):
 
 
 def _cmd_keypoints(args: argparse.Namespace) -> int:
-    from dronekey.evaluation.keypoints import evaluate_keypoints
-    from dronekey.sim_replay.presets import PRESETS
-
     if args.preset not in PRESETS:
         raise _UsageError(f"unknown preset {args.preset!r}; available: {', '.join(PRESETS)}")
     if args.frames <= 0:
@@ -54,10 +69,7 @@ def _cmd_keypoints(args: argparse.Namespace) -> int:
     return 0
 
 
-def _load(json_path: Path, video: str | None):
-    from dronekey.sim_replay.io.frames import iter_frames
-    from dronekey.sim_replay.io.sequence_reader import load_sequence
-
+def _load(json_path: Path, video: str | None) -> tuple[SequenceAnnotations, Iterator[SequenceFrame]]:
     if not json_path.is_file():
         raise _UsageError(f"sequence file not found: {json_path}")
     seq = load_sequence(json_path)
@@ -65,8 +77,6 @@ def _load(json_path: Path, video: str | None):
 
 
 def _cmd_pose(args: argparse.Namespace) -> int:
-    from dronekey.evaluation.pose import evaluate_sequence, plot_sequence, table_vi, weighted_average
-
     if (args.sequence is None) == (args.all is None):
         raise _UsageError("give exactly one of --sequence FILE.json or --all DIR")
     if args.oracle_noise is not None and args.oracle_noise < 0:
@@ -144,11 +154,7 @@ def _parse_size(text: str) -> tuple[int, int]:
 
 
 def _cmd_robustness(args: argparse.Namespace) -> int:
-    from dronekey.evaluation import robustness as rb
-
-    frames = (
-        args.frames if args.frames is not None else (rb.QUICK_FRAMES if args.quick else rb.DEFAULT_FRAMES)
-    )
+    frames = args.frames if args.frames is not None else (QUICK_FRAMES if args.quick else DEFAULT_FRAMES)
     if frames <= 0:
         raise _UsageError(f"--frames must be positive, got {frames}")
     if args.seeds is not None:
@@ -162,14 +168,14 @@ def _cmd_robustness(args: argparse.Namespace) -> int:
     if args.model is not None and not Path(args.model).is_file():
         raise _UsageError(f"--model not found: {args.model}")
     try:
-        report = rb.run_robustness(
+        report = run_robustness(
             out,
             frames=frames,
             seeds=args.seeds,
             tuning=args.tuning,
             model_path=args.model,
-            backgrounds=rb.QUICK_BACKGROUNDS if args.quick else rb.BACKGROUNDS,
-            drone_free=rb.QUICK_DRONE_FREE if args.quick else rb.DRONE_FREE_SEQUENCES,
+            backgrounds=QUICK_BACKGROUNDS if args.quick else BACKGROUNDS,
+            drone_free=QUICK_DRONE_FREE if args.quick else DRONE_FREE_SEQUENCES,
             width=width,
             height=height,
             mirror_average=not args.no_mirror_average,

@@ -14,9 +14,12 @@ import time
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from dronekey.evaluation.metrics import ap_kp, oks_drone, roc_auc, sr
 from dronekey.geometry.crop import CropPolicy, roi_around_box
+from dronekey.perception.keypoint_model import KeypointModel
+from dronekey.sim_replay.synthetic_sequence import build_sequence
 
 __all__ = ["evaluate_keypoints"]
 
@@ -48,9 +51,6 @@ def evaluate_keypoints(
     """Render, crop, detect and score; returns the figures of ``dronekey-eval keypoints``.
 
     ``mirror_average`` as the daemon's pipeline runs the model by default (``KeypointModel``)."""
-    from dronekey.perception.keypoint_model import KeypointModel
-    from dronekey.sim_replay.synthetic_sequence import build_sequence
-
     model = KeypointModel(model_path, mirror_average=mirror_average)
     policy = CropPolicy(**{**model.metadata.get("crop_policy", {}), "input_size": model.input_size})
     seq = build_sequence(preset, seed=seed, frames=frames)
@@ -60,8 +60,6 @@ def evaluate_keypoints(
     infer_s = 0.0
     iterator = iter(seq)
     if progress:
-        from tqdm import tqdm
-
         iterator = tqdm(iterator, total=len(seq), desc=f"{preset} seed {seed}", unit="frame", leave=False)
     for rf in iterator:
         ann = rf.record.drone

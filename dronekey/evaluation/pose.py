@@ -18,14 +18,16 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from dronekey.evaluation.metrics import ap_kp, oks_drone, sr
 from dronekey.geometry.drone_spec import DroneSpec, load_spec
 from dronekey.geometry.rotations import geodesic_angle_deg, quat_wxyz_to_matrix
+from dronekey.pipeline import PoseTracker, TrackingPipeline
 from dronekey.types import PUBLISHED_STATUSES, Frame, KeypointDetection, TrackStatus
 
 __all__ = [
@@ -36,6 +38,8 @@ __all__ = [
     "published_track_rank",
     "rounded",
     "sequence_spec",
+    "table_vi",
+    "weighted_average",
 ]
 
 log = logging.getLogger(__name__)
@@ -124,8 +128,6 @@ def sequence_spec(seq) -> DroneSpec:
         spec = load_spec("mini2")
     kp = np.asarray(seq.keypoints_3d, dtype=np.float64)
     if kp.shape == (4, 3) and not np.allclose(kp, spec.keypoints_3d):
-        from dataclasses import replace
-
         spec = replace(spec, name=str(seq.drone_model), keypoints_3d=kp)
     return spec
 
@@ -140,8 +142,6 @@ def evaluate_sequence(
     mirror_average: bool = True,
 ) -> SequenceResult:
     """Run the pipeline over ``frames`` (an iterable of ``SequenceFrame``) of the loaded ``seq``."""
-    from dronekey.pipeline import PoseTracker, TrackingPipeline
-
     spec = sequence_spec(seq)
     rng = np.random.default_rng(seed)
     if oracle_noise_px is None:
@@ -156,8 +156,6 @@ def evaluate_sequence(
     proc_s, n_frames = 0.0, 0
     iterator = frames
     if progress:
-        from tqdm import tqdm
-
         iterator = tqdm(frames, total=len(seq.frames), desc=seq.name, unit="frame", leave=False)
     for sf in iterator:
         frame = Frame(sf.index, sf.t_ns, sf.bgr)
@@ -264,51 +262,3 @@ def weighted_average(values, weights, rms: bool = False) -> float:
     if rms:
         return float(np.sqrt(np.sum(w[ok] * v[ok] ** 2) / np.sum(w[ok])))
     return float(np.sum(w[ok] * v[ok]) / np.sum(w[ok]))
-
-
-def plot_sequence(result: SequenceResult, path: str | Path) -> None:
-    """Ground truth against the estimate: trajectory, viewing axis, per-frame errors (paper Fig. 10)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    s = result.series
-    t = s["t"]
-    fig, ax = plt.subplots(2, 2, figsize=(11, 8))
-    ax[0, 0].plot(s["t_gt"][:, 0], s["t_gt"][:, 2], "g-", label="ground truth")
-    ax[0, 0].plot(s["t_f"][:, 0], s["t_f"][:, 2], "m.", ms=2, label="filtered")
-    ax[0, 0].plot(s["t_raw"][:, 0], s["t_raw"][:, 2], "k.", ms=1, alpha=0.4, label="raw PnP")
-    ax[0, 0].set_xlabel("camera x (m, right)")
-    ax[0, 0].set_ylabel("camera z (m, forward)")
-    ax[0, 0].set_title(f"{result.sequence}: trajectory seen from above")
-    ax[0, 0].axis("equal")
-    ax[0, 0].legend()
-    # Viewing axis: the drone's forward (body x) direction in the camera frame, as azimuth/elevation.
-    for key, style, lab in (("R_gt", "g-", "ground truth"), ("R_f", "m.", "filtered")):
-        fwd = s[key][:, :, 0]
-        az = np.degrees(np.arctan2(fwd[:, 0], fwd[:, 2]))
-        el = np.degrees(np.arcsin(np.clip(-fwd[:, 1], -1, 1)))
-        ax[0, 1].plot(t, az, style, ms=2, label=f"azimuth {lab}")
-        ax[0, 1].plot(t, el, style, ms=2, alpha=0.5, label=f"elevation {lab}")
-    ax[0, 1].set_xlabel("time (s)")
-    ax[0, 1].set_ylabel("deg")
-    ax[0, 1].set_title("viewing axis (drone forward) in the camera frame")
-    ax[0, 1].legend(fontsize=7)
-    for key, style, lab in (("R_f", "m-", "filtered"), ("R_raw", "k.", "raw PnP")):
-        err = [
-            geodesic_angle_deg(a, b) if np.all(np.isfinite(a)) else np.nan
-            for a, b in zip(s[key], s["R_gt"], strict=True)
-        ]
-        ax[1, 0].plot(t, err, style, ms=2, label=lab)
-    ax[1, 0].set_xlabel("time (s)")
-    ax[1, 0].set_ylabel("rotation error (deg)")
-    ax[1, 0].legend()
-    for key, style, lab in (("t_f", "m-", "filtered"), ("t_raw", "k.", "raw PnP")):
-        ax[1, 1].plot(t, np.linalg.norm(s[key] - s["t_gt"], axis=1), style, ms=2, label=lab)
-    ax[1, 1].set_xlabel("time (s)")
-    ax[1, 1].set_ylabel("position error (m)")
-    ax[1, 1].legend()
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)

@@ -8,8 +8,12 @@ import os
 import numpy as np
 import pytest
 
-from dronekey.evaluation import robustness as rb
 from dronekey.evaluation.cli import main
+from dronekey.evaluation.robustness import matrix as matrix
+from dronekey.evaluation.robustness.run import run_robustness
+from dronekey.evaluation.robustness.scoring import WRONG_HEADING_DEG, SequenceScores, match_gate_m
+from dronekey.evaluation.robustness.seed_sets import check_seeds
+from dronekey.evaluation.robustness.summary import summarise
 from dronekey.geometry.rotations import rotation_from_euler_deg
 
 # A tiny matrix: two LED modes on the held-out photos, one motion (the first sequence is far), two
@@ -47,43 +51,45 @@ ENTRY_KEYS = {"name", "seed", "style_seed", "leds", "background", "range_scale",
 @pytest.fixture(scope="module")
 def tiny(tmp_path_factory):
     out = tmp_path_factory.mktemp("robustness")
-    return out, rb.run_robustness(out, **TINY)
+    return out, run_robustness(out, **TINY)
 
 
 def test_default_matrix_and_seeds():
-    entries = rb.plan_matrix()
+    entries = matrix.plan_matrix()
     drone = [e for e in entries if not e.no_drone]
     free = [e for e in entries if e.no_drone]
     assert len(drone) == 4 * 3 * 3 and sum(e.frames for e in drone) == 5400
     assert len(free) == 20 and sum(e.frames for e in free) >= 3000
-    assert {e.background for e in free} == set(rb.BACKGROUNDS) and {e.preset for e in free} == set(rb.MOTIONS)
+    assert {e.background for e in free} == set(matrix.BACKGROUNDS)
+    assert {e.preset for e in free} == set(matrix.MOTIONS)
     # Latin square: one far motion per (LED, background) cell, a third of every LED, background, motion.
-    for led in rb.LED_CONDITIONS:
-        for bg in rb.BACKGROUNDS:
+    for led in matrix.LED_CONDITIONS:
+        for bg in matrix.BACKGROUNDS:
             assert sum(e.far for e in drone if (e.leds, e.background) == (led, bg)) == 1
-    for attr, values in (("leds", rb.LED_CONDITIONS), ("background", rb.BACKGROUNDS), ("preset", rb.MOTIONS)):
+    axes = (("leds", matrix.LED_CONDITIONS), ("background", matrix.BACKGROUNDS), ("preset", matrix.MOTIONS))
+    for attr, values in axes:
         for v in values:
             group = [e for e in drone if getattr(e, attr) == v]
             assert 3 * sum(e.far for e in group) == len(group)
     seeds = [e.seed for e in entries]
     styles = [e.style_seed for e in entries]
     assert len(set(seeds)) == len(seeds) and len(set(styles)) == len(styles)
-    assert min(seeds) == rb.REPORTING_SEED and rb.VALIDATION_SEED not in seeds
-    tuning = {e.seed for e in rb.plan_matrix(rb.TUNING_SEED)}
+    assert min(seeds) == matrix.REPORTING_SEED and matrix.VALIDATION_SEED not in seeds
+    tuning = {e.seed for e in matrix.plan_matrix(matrix.TUNING_SEED)}
     assert not tuning & set(seeds)
     assert len({e.name for e in entries}) == len(entries)
 
 
 def test_seed_sets_are_kept_apart():
     with pytest.raises(ValueError, match="overlap the tuning seeds"):
-        rb.check_seeds([rb.TUNING_SEED], tuning=False)
+        check_seeds([matrix.TUNING_SEED], tuning=False)
     with pytest.raises(ValueError, match="overlap the reporting seeds"):
-        rb.check_seeds([rb.REPORTING_SEED + 3], tuning=True)
+        check_seeds([matrix.REPORTING_SEED + 3], tuning=True)
     with pytest.raises(ValueError, match="7919"):
-        rb.check_seeds([rb.VALIDATION_SEED - rb.DRONE_FREE_SEED_OFFSET], tuning=False)
+        check_seeds([matrix.VALIDATION_SEED - matrix.DRONE_FREE_SEED_OFFSET], tuning=False)
     with pytest.raises(ValueError, match="overlap"):
-        rb.check_seeds([8001, 8002], tuning=False)
-    plans = rb.check_seeds([8001, 9001], tuning=False)
+        check_seeds([8001, 8002], tuning=False)
+    plans = check_seeds([8001, 9001], tuning=False)
     assert [p[0].seed for p in plans.values()] == [8001, 9001]
 
 
@@ -100,12 +106,12 @@ def test_seed_sets_are_kept_apart():
 )
 def test_plan_errors_name_the_argument(kwargs, message):
     with pytest.raises(ValueError, match=message):
-        rb.plan_matrix(**kwargs)
+        matrix.plan_matrix(**kwargs)
 
 
 def test_match_gate():
-    assert rb.match_gate_m(np.array([0.0, 0.0, 1.0])) == 0.5
-    assert rb.match_gate_m(np.array([0.0, 6.0, 8.0])) == pytest.approx(2.5)
+    assert match_gate_m(np.array([0.0, 0.0, 1.0])) == 0.5
+    assert match_gate_m(np.array([0.0, 6.0, 8.0])) == pytest.approx(2.5)
 
 
 def _scores(false, detected=(), wrong=(), confident=(), dt=()):
@@ -113,7 +119,7 @@ def _scores(false, detected=(), wrong=(), confident=(), dt=()):
     R = np.repeat(np.eye(3)[None], n, axis=0)
     t_true = np.tile([0.0, 0.0, 4.0], (n, 1))
     t_track = t_true + np.asarray(dt, dtype=float).reshape(n, 3) if n else t_true
-    return rb.SequenceScores(
+    return SequenceScores(
         no_drone=n == 0,
         false_frame=np.asarray(false, bool),
         false_ids=int(any(false)),
@@ -136,7 +142,7 @@ def test_summarise_pools_frames():
     a = _scores([False, True], [True, False], [True, False], [False, False], [[0.3, 0, 0], [0, 0, 0]])
     b = _scores([False, False], [True, True], [False, False], [False, False], [[0, 0.1, 0], [0, 0.1, 0]])
     free = _scores([True, False, False, True])
-    s = rb.summarise([a, b, free])
+    s = summarise([a, b, free])
     assert s["sequences"] == 3 and s["frames"] == 8
     assert s["detected_frames"] == 3 and s["detected_pct"] == 75.0
     # RMSE over the 3 detected frames (not the mean of per-sequence RMSEs).
@@ -145,7 +151,7 @@ def test_summarise_pools_frames():
     assert s["false_track_ids"] == 2
     assert s["wrong_heading_frames"] == 1 and s["wrong_heading_pct"] == 25.0
     assert s["confident_wrong_heading_frames"] == 0
-    only_free = rb.summarise([free])
+    only_free = summarise([free])
     assert only_free["false_tracks_per_1000_frames"] == 500.0 and only_free["mae_angle_deg"] is None
     assert set(only_free) == METRICS
 
@@ -156,14 +162,14 @@ def test_wrong_heading_is_a_geodesic_angle_over_90_deg():
 
     R = rotation_from_euler_deg(30.0, 5.0, -3.0)
     twin = rotation_from_euler_deg(210.0, -5.0, 3.0)
-    assert geodesic_angle_deg(R, twin) > rb.WRONG_HEADING_DEG
+    assert geodesic_angle_deg(R, twin) > WRONG_HEADING_DEG
 
 
 def test_report_json_keys_and_drone_free_frames(tiny):
     _, report = tiny
     d = json.loads(json.dumps(report.to_dict()))
     assert set(d) == {"settings", "groups", "sequences"}
-    assert d["settings"]["seed_set"] == "reporting" and d["settings"]["seeds"] == [rb.REPORTING_SEED]
+    assert d["settings"]["seed_set"] == "reporting" and d["settings"]["seeds"] == [matrix.REPORTING_SEED]
     assert d["settings"]["reused_sequences"] == 0
     assert len(d["sequences"]) == 4
     for seq in d["sequences"]:
@@ -202,12 +208,12 @@ def test_rerun_reuses_the_renders(tiny):
     out, first = tiny
     paths = [s.rendered.json_path for s in first.sequences]
     stamps = [os.stat(p).st_mtime_ns for p in paths]
-    again = rb.run_robustness(out, **{**TINY, "leds": ("red-front",), "drone_free": 1})
+    again = run_robustness(out, **{**TINY, "leds": ("red-front",), "drone_free": 1})
     assert again.settings["reused_sequences"] == 2
     assert all(s.rendered.reused for s in again.sequences)
     assert [os.stat(p).st_mtime_ns for p in paths] == stamps
     # Other settings are another sequence: rendered, the earlier one left alone.
-    longer = rb.run_robustness(out, **{**TINY, "leds": ("red-front",), "drone_free": 0, "frames": 7})
+    longer = run_robustness(out, **{**TINY, "leds": ("red-front",), "drone_free": 0, "frames": 7})
     assert longer.settings["reused_sequences"] == 0
     assert longer.sequences[0].rendered.json_path != paths[0]
     assert os.stat(paths[0]).st_mtime_ns == stamps[0]
@@ -217,8 +223,8 @@ def test_cli_json_then_table(tmp_path, capsys):
     argv = ["robustness", "--out", str(tmp_path), "--quick", "--frames", "3", "--size", "320x180"]
     assert main([*argv, "--json"]) == 0
     d = json.loads(capsys.readouterr().out)
-    assert d["settings"]["backgrounds"] == list(rb.QUICK_BACKGROUNDS)
-    assert len(d["sequences"]) == 4 * 3 + rb.QUICK_DRONE_FREE
+    assert d["settings"]["backgrounds"] == list(matrix.QUICK_BACKGROUNDS)
+    assert len(d["sequences"]) == 4 * 3 + matrix.QUICK_DRONE_FREE
     assert main(argv) == 0
     lines = capsys.readouterr().out.splitlines()
     assert lines[0].startswith("robustness: reporting seeds 7001")

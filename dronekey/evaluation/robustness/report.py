@@ -1,0 +1,129 @@
+"""The report of ``dronekey-eval robustness``: its settings and every sequence, as a table or JSON.
+
+Rows (``RobustnessReport.groups``): per LED condition, per background, per motion, per range (near,
+far), all drone sequences, drone-free; each row pools its sequences' frames (``summary``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from dronekey.evaluation.pose import rounded
+from dronekey.evaluation.robustness.render import Rendered
+from dronekey.evaluation.robustness.scoring import SequenceScores
+from dronekey.evaluation.robustness.summary import summarise
+
+__all__ = ["EvaluatedSequence", "RobustnessReport"]
+
+
+@dataclass(frozen=True)
+class EvaluatedSequence:
+    """One sequence of the matrix, rendered and scored."""
+
+    rendered: Rendered
+    scores: SequenceScores
+
+    def to_dict(self) -> dict:
+        return {
+            **self.rendered.entry.to_dict(),
+            "json": str(self.rendered.json_path),
+            "reused": self.rendered.reused,
+            "render_s": round(self.rendered.render_s, 2),
+            "fps": rounded(self.scores.fps, 1),
+            **summarise([self.scores]),
+        }
+
+
+# Table columns: (header, unit, key in summarise's dict, format).
+_COLUMNS = (
+    ("seqs", "", "sequences", "{:d}"),
+    ("frames", "", "frames", "{:d}"),
+    ("MAE-ang", "deg", "mae_angle_deg", "{:.2f}"),
+    ("RMSE", "m", "rmse_m", "{:.3f}"),
+    ("MAE-abs", "m", "mae_abs_m", "{:.3f}"),
+    ("detected", "%", "detected_pct", "{:.1f}"),
+    ("AP^kp", "%", "ap_kp", "{:.1f}"),
+    ("false", "/1k fr", "false_tracks_per_1000_frames", "{:.1f}"),
+    ("false", "ids", "false_track_ids", "{:d}"),
+    ("conf>90", "%", "confident_wrong_heading_pct", "{:.2f}"),
+    ("any>90", "%", "wrong_heading_pct", "{:.2f}"),
+)
+
+
+@dataclass
+class RobustnessReport:
+    """Everything ``dronekey-eval robustness`` reports: its settings and every sequence."""
+
+    settings: dict
+    sequences: list[EvaluatedSequence] = field(default_factory=list)
+
+    def groups(self) -> list[tuple[str, str, list[EvaluatedSequence]]]:
+        """``(by, value, sequences)`` of every row of the table, in order: per LED condition, per
+        background, per motion, per range (near, far), all drone sequences, drone-free."""
+        drone = [s for s in self.sequences if not s.rendered.entry.no_drone]
+        free = [s for s in self.sequences if s.rendered.entry.no_drone]
+        rows = []
+        for by, attr, values in (
+            ("leds", "leds", self.settings["leds"]),
+            ("background", "background", self.settings["backgrounds"]),
+            ("motion", "preset", self.settings["motions"]),
+        ):
+            rows += [(by, v, [s for s in drone if getattr(s.rendered.entry, attr) == v]) for v in values]
+        near = [s for s in drone if not s.rendered.entry.far]
+        far = [s for s in drone if s.rendered.entry.far]
+        rows.append(("range", "near", near))
+        if far:
+            rows.append(("range", f"far x{self.settings['far_range_scale']:g}", far))
+        rows.append(("all", "drone sequences", drone))
+        if free:
+            rows.append(("drone-free", "drone-free", free))
+        return [r for r in rows if r[2]]
+
+    def to_dict(self) -> dict:
+        """The settings, every table row (``groups``) and every sequence, JSON-ready."""
+        return {
+            "settings": self.settings,
+            "groups": [
+                {"by": by, "value": value, **summarise([s.scores for s in seqs])}
+                for by, value, seqs in self.groups()
+            ],
+            "sequences": [s.to_dict() for s in self.sequences],
+        }
+
+    def table(self) -> str:
+        """One text table: a row per group (``groups``), a blank line between kinds of group."""
+        st = self.settings
+        label_w = 24
+        widths = [max(len(h), len(u), 6) for h, u, _, _ in _COLUMNS]
+        head = f"{'group':<{label_w}}" + "".join(
+            f" {h:>{w}}" for (h, _, _, _), w in zip(_COLUMNS, widths, strict=True)
+        )
+        units = f"{'':<{label_w}}" + "".join(
+            f" {u:>{w}}" for (_, u, _, _), w in zip(_COLUMNS, widths, strict=True)
+        )
+        lines = [
+            f"robustness: {st['seed_set']} seeds {', '.join(map(str, st['seeds']))} "
+            f"(scene seeds {st['scene_seeds']}), {st['frames']} frames per sequence at "
+            f"{st['size'][0]}x{st['size'][1]}, model {Path(st['model']).name}",
+            head,
+            units,
+            "-" * len(head),
+        ]
+        if not st.get("model_has_heading_head", True):
+            lines.insert(
+                1, "(the model has no front/back head: heading_confidence is NaN, conf>90 is 0 by definition)"
+            )
+        previous = None
+        for by, value, seqs in self.groups():
+            if previous is not None and by != previous:
+                lines.append("")
+            previous = by
+            summary = summarise([s.scores for s in seqs])
+            label = value if by in ("all", "drone-free") else f"{by} {value}"
+            cells = []
+            for (_, _, key, fmt), w in zip(_COLUMNS, widths, strict=True):
+                v = summary[key]
+                cells.append(f" {'-' if v is None else fmt.format(v):>{w}}")
+            lines.append(f"{label:<{label_w}}" + "".join(cells))
+        return "\n".join(lines)

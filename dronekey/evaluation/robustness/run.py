@@ -1,0 +1,148 @@
+"""``run_robustness``: render the matrix, run the pipeline over every sequence, score and report it.
+
+What the matrix holds and how its seeds are chosen: ``matrix`` and ``seed_sets``; how a frame is
+scored: ``scoring``; the pooled figures: ``summary``; the table and JSON: ``report``.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+from tqdm import tqdm
+
+from dronekey.evaluation.robustness.matrix import (
+    BACKGROUNDS,
+    DEFAULT_FRAMES,
+    DRONE_FREE_SEQUENCES,
+    FAR_RANGE_SCALE,
+    LED_CONDITIONS,
+    MOTIONS,
+    REPORTING_SEED,
+    TUNING_SEED,
+)
+from dronekey.evaluation.robustness.render import render_matrix
+from dronekey.evaluation.robustness.report import EvaluatedSequence, RobustnessReport
+from dronekey.evaluation.robustness.scoring import (
+    CONFIDENT_HEADING,
+    MATCH_GATE_FRACTION,
+    MATCH_GATE_M,
+    WRONG_HEADING_DEG,
+    score_sequence,
+)
+from dronekey.evaluation.robustness.seed_sets import check_seeds, seed_ranges
+from dronekey.perception.keypoint_model import KeypointModel
+from dronekey.sim_replay.io.sequence_reader import load_sequence
+
+__all__ = ["run_robustness"]
+
+
+def run_robustness(
+    out_dir: str | Path,
+    *,
+    frames: int = DEFAULT_FRAMES,
+    seeds: Sequence[int] | None = None,
+    tuning: bool = False,
+    model_path: str | Path | None = None,
+    leds: Sequence[str] = LED_CONDITIONS,
+    backgrounds: Sequence[str] = BACKGROUNDS,
+    motions: Sequence[str] = MOTIONS,
+    far_range_scale: float | None = FAR_RANGE_SCALE,
+    drone_free: int = DRONE_FREE_SEQUENCES,
+    width: int = 1920,
+    height: int = 1080,
+    mirror_average: bool = True,
+    progress: bool = False,
+) -> RobustnessReport:
+    """Render the matrix (reusing what ``out_dir`` holds), run the pipeline and score it.
+
+    Parameters
+    ----------
+    out_dir : folder for the rendered sequences (created if missing).
+    frames : frames per sequence.
+    seeds : base scene seeds, one matrix each; default ``[TUNING_SEED]`` with ``tuning``, else
+        ``[REPORTING_SEED]``.
+    tuning : the seeds are the tuning set (kept apart from the reporting set, ``check_seeds``).
+    model_path : ONNX keypoint model; the shipped one by default.
+    leds, backgrounds, motions, far_range_scale, drone_free, width, height : the matrix
+        (``plan_matrix``).
+    mirror_average : passed to the pipeline (the daemon's default).
+    progress : tqdm bars on stderr while rendering and evaluating.
+
+    Returns
+    -------
+    RobustnessReport
+
+    Raises
+    ------
+    ValueError
+        A bad argument (named with its value, see ``plan_matrix`` and ``check_seeds``), a model
+        without DroneKey metadata, or ``out_dir`` that is a file.
+    FileNotFoundError
+        The model file is missing.
+    ImportError
+        ``backgrounds`` holds ``"photos"`` and neither scikit-image nor scikit-learn is installed.
+    """
+    bases = [TUNING_SEED if tuning else REPORTING_SEED] if seeds is None else list(seeds)
+    matrix = {
+        "frames": frames,
+        "leds": leds,
+        "backgrounds": backgrounds,
+        "motions": motions,
+        "far_range_scale": far_range_scale,
+        "drone_free": drone_free,
+        "width": width,
+        "height": height,
+    }
+    plans = check_seeds(bases, tuning=tuning, **matrix)
+    out_dir = Path(out_dir)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise ValueError(f"out_dir must be a folder, got the file {str(out_dir)!r}")
+    model = KeypointModel(model_path)  # a bad model fails now, not after the renders
+    entries = [e for plan in plans.values() for e in plan]
+    settings = {
+        "seed_set": "tuning" if tuning else "reporting",
+        "seeds": bases,
+        "scene_seeds": seed_ranges(e.seed for e in entries),
+        "frames": int(frames),
+        "size": [int(width), int(height)],
+        "leds": list(leds),
+        "backgrounds": list(backgrounds),
+        "motions": list(motions),
+        "far_range_scale": far_range_scale,
+        "drone_free_sequences": int(drone_free),
+        "model": str(model.path),
+        "model_has_heading_head": bool(model.has_heading),
+        "mirror_average": bool(mirror_average),
+        "match_gate": {"min_m": MATCH_GATE_M, "range_fraction": MATCH_GATE_FRACTION},
+        "wrong_heading_deg": WRONG_HEADING_DEG,
+        "confident_heading": CONFIDENT_HEADING,
+        "out_dir": str(out_dir),
+    }
+    out_dir.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    rendered = render_matrix(entries, out_dir, progress=progress)
+    t1 = time.perf_counter()
+    report = RobustnessReport(settings)
+    with tqdm(
+        total=sum(e.frames for e in entries),
+        desc="evaluate",
+        unit="frame",
+        disable=not progress,
+        file=sys.stderr,
+    ) as bar:
+        for r in rendered:
+            bar.set_postfix_str(r.entry.name)
+            scores = score_sequence(
+                load_sequence(r.json_path),
+                settings["model"],
+                mirror_average=mirror_average,
+                on_frame=bar.update,
+            )
+            report.sequences.append(EvaluatedSequence(r, scores))
+    settings["render_s"] = round(t1 - t0, 1)
+    settings["evaluate_s"] = round(time.perf_counter() - t1, 1)
+    settings["reused_sequences"] = sum(r.reused for r in rendered)
+    return report

@@ -1,0 +1,217 @@
+"""Scoring one sequence of ``dronekey-eval robustness``: the daemon's pipeline over it, frame by frame.
+
+A fresh ``TrackingPipeline`` (unchanged) runs over every frame; per scored frame it records:
+
+- the drone's track: the best published (confirmed or coasting) track within
+  ``max(MATCH_GATE_M, MATCH_GATE_FRACTION * range)`` of the true position (camera frame, metres;
+  the range is the true distance from the camera), ranked as ``dronekey-eval pose`` ranks its
+  estimate (confirmed before coasting, most hits, oldest id), and its pose against the truth;
+- a false track: a published track that is not the drone's (farther than the gate from the truth;
+  in a drone-free frame, any published track), and the ids of such tracks;
+- a wrong heading: the drone's track more than ``WRONG_HEADING_DEG`` from the true attitude
+  (geodesic angle of R_track^T R_true, so a front/back flip counts), and whether its
+  ``heading_confidence`` was >= ``CONFIDENT_HEADING`` (a model without a front/back head gives NaN
+  confidences, which never count);
+- the pipeline's best detection against the annotated keypoints (for AP^kp).
+
+Every frame of a drone-free sequence is scored; frames of a drone sequence without an annotation
+(the drone out of view) are not.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from dronekey.evaluation.pose import published_track_rank, sequence_spec
+from dronekey.geometry.rotations import geodesic_angle_deg, quat_wxyz_to_matrix
+from dronekey.pipeline import TrackingPipeline
+from dronekey.sim_replay.annotations import SequenceAnnotations
+from dronekey.sim_replay.io.frames import iter_frames
+from dronekey.types import PUBLISHED_STATUSES
+
+__all__ = [
+    "CONFIDENT_HEADING",
+    "MATCH_GATE_FRACTION",
+    "MATCH_GATE_M",
+    "WRONG_HEADING_DEG",
+    "SequenceScores",
+    "match_gate_m",
+    "score_sequence",
+]
+
+MATCH_GATE_M = 0.5
+MATCH_GATE_FRACTION = 0.25
+WRONG_HEADING_DEG = 90.0
+CONFIDENT_HEADING = 0.5
+
+
+def match_gate_m(t_true: np.ndarray) -> float:
+    """Largest distance (m) between a track's position and the true one for the track to be the drone.
+
+    Parameters
+    ----------
+    t_true : (3,) true position of the drone in the camera frame, metres.
+
+    Returns
+    -------
+    ``max(MATCH_GATE_M, MATCH_GATE_FRACTION * ||t_true||)``, metres.
+    """
+    return max(MATCH_GATE_M, MATCH_GATE_FRACTION * float(np.linalg.norm(t_true)))
+
+
+def _stack(rows: list, shape: tuple[int, ...], dtype=np.float64) -> np.ndarray:
+    return np.asarray(rows, dtype=dtype).reshape(len(rows), *shape)
+
+
+@dataclass
+class SequenceScores:
+    """Per-frame outcome of one sequence (scored frames only, in frame order).
+
+    no_drone : a drone-free sequence: only ``false_frame`` is filled, the other arrays are empty.
+    false_frame : (N,) a published track that is not the drone's in the frame.
+    false_ids : distinct track ids that were such a track in at least one frame.
+    detected : (N,) the frame has a drone's track (see the module's notes).
+    R_track, t_track : (N, 3, 3), (N, 3) the drone's track (body -> camera, camera-frame metres);
+        NaN where not detected. R_true, t_true : the ground truth.
+    wrong_heading : (N,) the drone's track is more than ``WRONG_HEADING_DEG`` off (geodesic angle).
+    confident_wrong_heading : (N,) ``wrong_heading`` while the track's ``heading_confidence`` >=
+        ``CONFIDENT_HEADING``.
+    kp_pred, kp_true : (N, 4, 2) the pipeline's best detection and the annotated keypoints, pixels.
+    area : (N,) annotated box area, pixels^2. score : (N,) presence of the detection (0 without).
+    has_pred : (N,) a detection exists.
+    fps : frames per second of the pipeline alone (all frames of the sequence).
+    """
+
+    no_drone: bool
+    false_frame: np.ndarray
+    false_ids: int
+    detected: np.ndarray
+    R_track: np.ndarray
+    t_track: np.ndarray
+    R_true: np.ndarray
+    t_true: np.ndarray
+    wrong_heading: np.ndarray
+    confident_wrong_heading: np.ndarray
+    kp_pred: np.ndarray
+    kp_true: np.ndarray
+    area: np.ndarray
+    score: np.ndarray
+    has_pred: np.ndarray
+    fps: float = float("nan")
+
+    @property
+    def frames(self) -> int:
+        """Scored frames: every frame of a drone-free sequence, the annotated ones otherwise."""
+        return int(self.false_frame.size)
+
+
+def score_sequence(
+    seq: SequenceAnnotations,
+    model_path: str | Path | None = None,
+    *,
+    mirror_average: bool = True,
+    on_frame: Callable[[], object] | None = None,
+) -> SequenceScores:
+    """Run a fresh ``TrackingPipeline`` over a loaded sequence and score every frame.
+
+    Parameters
+    ----------
+    seq : ``SequenceAnnotations`` (``sim_replay.io.sequence_reader.load_sequence``); ``info.no_drone``
+        marks a drone-free sequence.
+    model_path : ONNX keypoint model; the shipped one by default.
+    mirror_average : passed to the pipeline (the daemon's default).
+    on_frame : called after each frame (a progress bar's ``update``).
+
+    Returns
+    -------
+    SequenceScores
+    """
+    no_drone = bool(seq.info.get("no_drone", False))
+    pipeline = TrackingPipeline(
+        seq.camera, model_path, drone=sequence_spec(seq), mirror_average=mirror_average
+    )
+    rows: dict[str, list] = {
+        k: []
+        for k in (
+            "false",
+            "detected",
+            "R_track",
+            "t_track",
+            "R_true",
+            "t_true",
+            "wrong",
+            "confident_wrong",
+            "kp_pred",
+            "kp_true",
+            "area",
+            "score",
+            "has_pred",
+        )
+    }
+    false_ids: set[int] = set()
+    proc_s, n = 0.0, 0
+    for sf in iter_frames(seq):
+        t0 = time.perf_counter()
+        out = pipeline.process(sf.frame)
+        proc_s += time.perf_counter() - t0
+        n += 1
+        if on_frame is not None:
+            on_frame()
+        published = [tr for tr in out.tracks if tr.status in PUBLISHED_STATUSES]
+        ann = sf.record.drone
+        if no_drone:
+            rows["false"].append(bool(published))
+            false_ids.update(tr.track_id for tr in published)
+            continue
+        if ann is None or not ann.has_pose:
+            continue
+        gate = match_gate_m(ann.translation)
+        is_drone = [float(np.linalg.norm(tr.position_m - ann.translation)) <= gate for tr in published]
+        false_ids.update(tr.track_id for tr, ok in zip(published, is_drone, strict=True) if not ok)
+        mine = [tr for tr, ok in zip(published, is_drone, strict=True) if ok]
+        best = min(mine, key=published_track_rank) if mine else None
+        rows["false"].append(not all(is_drone))
+        rows["detected"].append(best is not None)
+        rows["R_true"].append(ann.rotation)
+        rows["t_true"].append(ann.translation)
+        if best is not None:
+            R = quat_wxyz_to_matrix(best.quaternion_wxyz)
+            off = geodesic_angle_deg(R, ann.rotation) > WRONG_HEADING_DEG
+            rows["wrong"].append(off)
+            rows["confident_wrong"].append(off and bool(best.heading_confidence >= CONFIDENT_HEADING))
+            rows["R_track"].append(R)
+            rows["t_track"].append(best.position_m)
+        else:
+            rows["wrong"].append(False)
+            rows["confident_wrong"].append(False)
+            rows["R_track"].append(np.full((3, 3), np.nan))
+            rows["t_track"].append(np.full(3, np.nan))
+        det = out.detection
+        rows["kp_true"].append(ann.keypoints_px)
+        rows["area"].append(ann.area)
+        rows["has_pred"].append(det is not None)
+        rows["kp_pred"].append(det.keypoints_px if det is not None else np.zeros((4, 2)))
+        rows["score"].append(det.presence if det is not None else 0.0)
+    return SequenceScores(
+        no_drone=no_drone,
+        false_frame=_stack(rows["false"], (), bool),
+        false_ids=len(false_ids),
+        detected=_stack(rows["detected"], (), bool),
+        R_track=_stack(rows["R_track"], (3, 3)),
+        t_track=_stack(rows["t_track"], (3,)),
+        R_true=_stack(rows["R_true"], (3, 3)),
+        t_true=_stack(rows["t_true"], (3,)),
+        wrong_heading=_stack(rows["wrong"], (), bool),
+        confident_wrong_heading=_stack(rows["confident_wrong"], (), bool),
+        kp_pred=_stack(rows["kp_pred"], (4, 2)),
+        kp_true=_stack(rows["kp_true"], (4, 2)),
+        area=_stack(rows["area"], ()),
+        score=_stack(rows["score"], ()),
+        has_pred=_stack(rows["has_pred"], (), bool),
+        fps=n / proc_s if proc_s > 0 else float("nan"),
+    )

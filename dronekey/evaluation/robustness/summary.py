@@ -1,0 +1,93 @@
+"""The figures of ``dronekey-eval robustness``, pooled over the frames of a group of sequences.
+
+Per sequence and per group (a frame-weighted average over the scored frames, ``scoring``):
+
+- detected %: annotated frames with a drone's track, percent of the annotated frames;
+- MAE-angle (deg), RMSE (m), MAE-absolute (m): the paper's errors (``evaluation.pose.pose_errors``)
+  of the drone's track over the detected frames;
+- AP^kp (percent): COCO keypoint AP of the pipeline's best detection of every annotated frame (its
+  presence as the score; a frame without detection is a miss) against the annotated keypoints,
+  as ``dronekey-eval pose`` computes it (full-frame pixels, OKS area = annotated box area);
+- false-track frames: scored frames holding a false track, also per 1,000 scored frames, and the
+  number of distinct track ids that were ever such a track;
+- confident wrong heading %: annotated frames whose drone's track has a wrong heading with
+  confidence, percent of the annotated frames; ``wrong_heading_pct`` is the same share at any
+  confidence.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from dronekey.evaluation.metrics import ap_kp
+from dronekey.evaluation.pose import pose_errors, rounded
+from dronekey.evaluation.robustness.scoring import SequenceScores
+
+__all__ = ["summarise"]
+
+
+def _pct(count: int, total: int) -> float:
+    return 100.0 * count / total if total else float("nan")
+
+
+def summarise(scores: Sequence[SequenceScores]) -> dict:
+    """The metrics of the module's notes over the pooled frames of ``scores``.
+
+    Returns
+    -------
+    dict with ``sequences``, ``frames`` (scored), ``detected_frames``, ``detected_pct``,
+    ``mae_angle_deg``, ``rmse_m``, ``mae_abs_m``, ``ap_kp`` (percent), ``false_track_frames``,
+    ``false_tracks_per_1000_frames``, ``false_track_ids``, ``confident_wrong_heading_frames``,
+    ``confident_wrong_heading_pct``, ``wrong_heading_frames`` and ``wrong_heading_pct`` (any
+    confidence); figures that need a drone sequence are None without one, and a figure
+    with no frame to average is None.
+    """
+    frames = sum(s.frames for s in scores)
+    false_frames = sum(int(s.false_frame.sum()) for s in scores)
+    drone = [s for s in scores if not s.no_drone]
+    n_ann = sum(s.frames for s in drone)
+    out = {
+        "sequences": len(scores),
+        "frames": frames,
+        "detected_frames": None,
+        "detected_pct": None,
+        "mae_angle_deg": None,
+        "rmse_m": None,
+        "mae_abs_m": None,
+        "ap_kp": None,
+        "false_track_frames": false_frames,
+        "false_tracks_per_1000_frames": rounded(
+            1000.0 * false_frames / frames if frames else float("nan"), 2
+        ),
+        "false_track_ids": sum(s.false_ids for s in scores),
+        "confident_wrong_heading_frames": None,
+        "confident_wrong_heading_pct": None,
+        "wrong_heading_frames": None,
+        "wrong_heading_pct": None,
+    }
+    if not n_ann:
+        return out
+
+    def cat(name: str) -> np.ndarray:
+        return np.concatenate([getattr(s, name) for s in drone])
+
+    hit = cat("detected")
+    errors = pose_errors(cat("R_track")[hit], cat("t_track")[hit], cat("R_true")[hit], cat("t_true")[hit])
+    ap = ap_kp(cat("kp_pred"), cat("kp_true"), cat("area"), cat("score"), has_pred=cat("has_pred"))
+    wrong = int(cat("wrong_heading").sum())
+    confident_wrong = int(cat("confident_wrong_heading").sum())
+    out.update(
+        detected_frames=int(hit.sum()),
+        detected_pct=rounded(_pct(int(hit.sum()), n_ann), 2),
+        mae_angle_deg=rounded(errors.mae_angle_deg),
+        rmse_m=rounded(errors.rmse_m),
+        mae_abs_m=rounded(errors.mae_abs_m),
+        ap_kp=rounded(100.0 * ap, 2),
+        confident_wrong_heading_frames=confident_wrong,
+        confident_wrong_heading_pct=rounded(_pct(confident_wrong, n_ann), 2),
+        wrong_heading_frames=wrong,
+        wrong_heading_pct=rounded(_pct(wrong, n_ann), 2),
+    )
+    return out
