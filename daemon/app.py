@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from dronekey.daemon.calibration import camera_at_resolution, resolve_calibration
-from dronekey.daemon.config import DaemonConfig
+from dronekey.daemon.config.daemon_config import DaemonConfig
 from dronekey.daemon.errors import ExitCode, UsageError
 from dronekey.daemon.messages import sink_entry, status_message
 from dronekey.daemon.outputs import OutputContext, build_outputs, close_outputs

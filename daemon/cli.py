@@ -192,7 +192,8 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     mode = detect_log_mode()
     status_line = setup_logging("INFO", mode)
-    from dronekey.daemon.config import ConfigError, config_to_yaml, load_config
+    from dronekey.daemon.config.errors import ConfigError
+    from dronekey.daemon.config.loading import config_to_yaml, load_config
 
     try:
         config = load_config(getattr(args, "config", None), collect_overrides(args))

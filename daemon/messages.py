@@ -6,7 +6,10 @@ contract (docs/design.md §6.1); ``load_schema`` reads them.
 
 Frames and units follow docs/design.md §4: camera frame x right, y down, z forward (metres); quaternions
 (w, x, y, z) body -> camera; pixels of the full source frame. Non-finite numbers (NaN, inf) are
-sent as ``null`` and ``to_json_bytes`` refuses to emit anything that is not strict JSON.
+sent as ``null`` and ``to_json_bytes`` refuses to emit anything that is not strict JSON. The camera
+id is checked by ``config.camera.check_camera_id``, the one rule for it.
+
+Kept whole (some 400 lines): one job, the JSON contract, whose three builders share their helpers.
 """
 
 from __future__ import annotations
@@ -15,7 +18,6 @@ import enum
 import functools
 import json
 import math
-import re
 from collections.abc import Mapping, Sequence
 from importlib import resources
 from pathlib import PurePath
@@ -24,6 +26,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 import dronekey
+from dronekey.daemon.config.camera import check_camera_id
 from dronekey.types import Track, TrackStatus
 
 if TYPE_CHECKING:
@@ -33,7 +36,6 @@ if TYPE_CHECKING:
 
 __all__ = [
     "SCHEMA_NAMES",
-    "check_camera_id",
     "check_heading_confidence",
     "info_message",
     "jsonable",
@@ -46,9 +48,6 @@ __all__ = [
 ]
 
 SCHEMA_NAMES = ("track", "status", "info")
-
-# A camera id is one Zenoh key chunk and part of file names: no separators, wildcards or spaces.
-_CAMERA_ID = re.compile(r"^[A-Za-z0-9_.\-]+$")
 
 _STATUS_REQUIRED = ("healthy", "uptime_s", "fps", "source")
 _STATUS_OPTIONAL = ("latency_ms", "frames", "model", "tracks_active", "sinks")
@@ -70,16 +69,6 @@ def _schema_text(name: str) -> str:
 def load_schema(name: str) -> dict:
     """The JSON schema (draft 2020-12) of the ``track``, ``status`` or ``info`` message (a fresh copy)."""
     return json.loads(_schema_text(name))
-
-
-def check_camera_id(camera_id: str) -> str:
-    """Return ``camera_id`` if it can be a Zenoh key chunk and a file-name part, else raise ValueError."""
-    if not isinstance(camera_id, str) or not _CAMERA_ID.match(camera_id):
-        raise ValueError(
-            "camera_id must be letters, digits, '_', '-' or '.' (no '/', '*', '$', spaces), "
-            f"got {camera_id!r}"
-        )
-    return camera_id
 
 
 def key_expressions(camera_id: str) -> dict[str, str]:

@@ -15,7 +15,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from dronekey.daemon.config import DaemonConfig
+from dronekey.daemon.config.daemon_config import DaemonConfig
 from dronekey.daemon.errors import UsageError
 from dronekey.daemon.sinks.base import Sink, SinkWorker
 from dronekey.geometry.camera import CameraModel
@@ -41,20 +41,12 @@ class OutputContext:
 
 def _zenoh(config: DaemonConfig, ctx: OutputContext) -> Sink:
     from dronekey.daemon.messages import info_message
-    from dronekey.daemon.sinks.zenoh_sink import ZenohSink, ZenohTls
+    from dronekey.daemon.sinks.zenoh_sink import ZenohSink
 
-    z = config.zenoh
     geo = config.camera.camera_geo()
-    tls = None
-    if z.tls is not None:
-        tls = ZenohTls(z.tls.root_ca, z.tls.certificate, z.tls.private_key, z.tls.verify_name_on_connect)
     return ZenohSink(
+        config.zenoh,
         config.camera.id,
-        mode=z.mode,
-        connect=list(z.connect),
-        listen=list(z.listen),
-        scouting=z.scouting,
-        tls=tls,
         info=info_message(config.camera.id, ctx.camera, ctx.model_info, geo),
         camera_geo=geo,
     )
@@ -63,42 +55,19 @@ def _zenoh(config: DaemonConfig, ctx: OutputContext) -> Sink:
 def _mavlink(config: DaemonConfig, ctx: OutputContext) -> Sink:
     from dronekey.daemon.sinks.mavlink import MavlinkSink
 
-    m = config.mavlink
-    return MavlinkSink(
-        url=m.url,
-        sysid=m.sysid,
-        compid=m.compid,
-        signing_key_file=m.signing_key,
-        camera_geo=config.camera.camera_geo(),
-        simulated=ctx.simulated,
-        allow=list(m.allow),
-    )
+    return MavlinkSink(config.mavlink, config.camera.camera_geo(), simulated=ctx.simulated)
 
 
 def _mcap(config: DaemonConfig, ctx: OutputContext) -> Sink:
     from dronekey.daemon.sinks.mcap.sink import McapSink
 
-    m = config.mcap
-    return McapSink(
-        m.dir,
-        ctx.camera,
-        config.camera.id,
-        camera_geo=config.camera.camera_geo(),
-        image_rate_hz=m.image_rate_hz,
-        image_max_width=m.image_max_width,
-        jpeg_quality=m.jpeg_quality,
-        rotate_size_mb=m.rotate_size_mb,
-        rotate_duration_s=m.rotate_duration_s,
-        retention_total_mb=m.retention_total_mb,
-        min_free_mb=m.min_free_mb,
-        compression=m.compression,
-    )
+    return McapSink(config.mcap, ctx.camera, config.camera.id, camera_geo=config.camera.camera_geo())
 
 
 def _sbs1(config: DaemonConfig, ctx: OutputContext) -> Sink:
     from dronekey.daemon.sinks.sbs1 import Sbs1Sink
 
-    return Sbs1Sink(config.sbs1.listen, config.camera.camera_geo(), idle_timeout_s=config.sbs1.idle_timeout_s)
+    return Sbs1Sink(config.sbs1, config.camera.camera_geo())
 
 
 # name -> (enabled?, builder, flag that disables it)

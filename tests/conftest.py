@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import pytest
 
+from dronekey.daemon.config.mavlink import MavlinkConfig
 from dronekey.daemon.sinks.mavlink import MavlinkSink, load_dialect
 
 # The daemon's MAVLink identity in the MAVLink tests (the config's defaults).
@@ -18,12 +19,16 @@ def dialect(tmp_path_factory):
 
 @pytest.fixture
 def make_sink(dialect):
-    """``make(url, **kwargs) -> MavlinkSink`` as our system, every sink closed after the test."""
+    """``make(url, signing_key_file=None, allow=(), **kwargs) -> MavlinkSink`` as our system, every
+    sink closed after the test; ``kwargs`` are ``MavlinkSink``'s own."""
     sinks = []
 
-    def make(url: str, **kwargs) -> MavlinkSink:
+    def make(url: str, signing_key_file=None, allow=(), **kwargs) -> MavlinkSink:
         kwargs.setdefault("dialect_cache_dir", dialect.__file__.rsplit("/", 1)[0])
-        sink = MavlinkSink(url, SYSID, COMPID, **kwargs)
+        config = MavlinkConfig(
+            url=url, sysid=SYSID, compid=COMPID, signing_key=signing_key_file, allow=list(allow)
+        )
+        sink = MavlinkSink(config, **kwargs)
         sinks.append(sink)
         return sink
 

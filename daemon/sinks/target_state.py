@@ -1,7 +1,7 @@
-"""A track as air-traffic tools see it: WGS84 position, NED velocity, course, and aircraft-style ids.
+"""A track as air-traffic tools see it: WGS84 position, NED velocity, course, aircraft-style ids, time.
 
 Shared by the MAVLink messages (TARGET_ABSOLUTE, ADSB_VEHICLE) and the SBS-1 output, so both
-report the same position, the same 24-bit address and the same callsign for a track.
+report the same position, the same 24-bit address, the same callsign and the same time for a track.
 
 Altitude is in the datum of ``--camera-geo``'s altitude (``CameraGeo`` treats it as height above
 the WGS84 ellipsoid; give the camera's altitude above mean sea level instead and the output is AMSL
@@ -11,6 +11,7 @@ to well under a metre over the ranges a camera sees).
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Iterable
 from dataclasses import dataclass
 
@@ -27,6 +28,7 @@ __all__ = [
     "callsign",
     "icao_address",
     "target_geodetic",
+    "unix_time_us",
     "validate_icao_base",
     "validate_statuses",
 ]
@@ -40,6 +42,9 @@ _ICAO_BLOCK = 0x10000
 
 # Below this ground speed the direction of motion is noise: no course is reported.
 MIN_COURSE_SPEED_MPS = 0.5
+
+# Timestamps before 2001-09-09 are stream times (file PTS), not Unix time.
+_MIN_UNIX_NS = 1_000_000_000 * 1_000_000_000
 
 
 @dataclass(frozen=True)
@@ -86,6 +91,12 @@ def target_geodetic(track: Track, geo: CameraGeo) -> TargetGeodetic:
         course_deg=course,
         climb_rate_mps=float(-v_ned[2]),
     )
+
+
+def unix_time_us(t_ns: int) -> int:
+    """The time of a track state as air-traffic messages stamp it: ``t_ns`` in µs if it is Unix time
+    (live sources), else the current Unix time (file PTS, which is no time of day)."""
+    return int(t_ns) // 1000 if int(t_ns) >= _MIN_UNIX_NS else time.time_ns() // 1000
 
 
 def validate_icao_base(base: int) -> int:

@@ -18,8 +18,9 @@ Publishers use congestion control DROP, so a slow network never stalls the sink 
 Secure by default (docs/security.md): a peer listens on ``tcp/127.0.0.1:0`` only and a client not at
 all, and scouting (multicast on the LAN, gossip through connected nodes) is off, so nothing off this
 machine can find or reach the session unless the config says so; one INFO line at start says what
-the session exposes. ``ZenohTls`` adds TLS with mutual authentication: the router of a fleet then
-knows each sensor by its certificate's common name and its access control decides who publishes.
+the session exposes. The section's ``tls`` identity adds TLS with mutual authentication: the router
+of a fleet then knows each sensor by its certificate's common name and its access control decides
+who publishes. The settings are checked once, by ``ZenohConfig``; this module only applies them.
 """
 
 from __future__ import annotations
@@ -28,106 +29,55 @@ import json
 import logging
 import re
 import threading
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import zenoh
 
 from dronekey.daemon import messages
+from dronekey.daemon.config.camera import check_camera_id
+from dronekey.daemon.config.zenoh import ZenohConfig
 from dronekey.daemon.geo import CameraGeo
 from dronekey.daemon.sinks.base import FrameUpdate, Sink
 
-__all__ = ["LOOPBACK_LISTEN", "ZenohSink", "ZenohTls", "describe_exposure", "zenoh_config"]
+__all__ = ["ZenohSink", "describe_exposure", "zenoh_config"]
 
 log = logging.getLogger(__name__)
 
-_MODES = ("peer", "client")
-_ENDPOINT = re.compile(r"^[a-z0-9\-]+/\S+$")
-_HOST = re.compile(r"^[a-z0-9\-]+/(?:\[(?P<v6>[^\]]*)\]|(?P<host>[^:#?]*))")
-LOOPBACK_LISTEN = ("tcp/127.0.0.1:0",)  # a peer's listener when none is configured: this machine only
+# The host of an endpoint's address: [IPv6] or everything up to the port, metadata or config.
+_HOST = re.compile(r"^(?:\[(?P<v6>[^\]]*)\]|(?P<host>[^:#?]*))")
 
 
-@dataclass(frozen=True)
-class ZenohTls:
-    """The PEM files of this node's TLS identity, for links with mutual authentication.
+def zenoh_config(config: ZenohConfig, connect_timeout_s: float = 2.0) -> zenoh.Config:
+    """The Zenoh session configuration of the daemon, from its ``zenoh`` section.
 
-    ``root_ca`` verifies the other end (the router's certificate, or a peer's); ``certificate``
-    and ``private_key`` are presented to it, both when connecting and when listening, so the
-    certificate's common name is this sensor's identity in the router's access control.
-    ``verify_name_on_connect`` checks that the router's certificate names the connect host.
-    """
-
-    root_ca: Path
-    certificate: Path
-    private_key: Path
-    verify_name_on_connect: bool = True
-
-    def __post_init__(self) -> None:
-        for name in ("root_ca", "certificate", "private_key"):
-            path = Path(getattr(self, name))
-            if not path.is_file():
-                raise ValueError(f"zenoh tls {name} {str(path)!r} is not a file")
-            object.__setattr__(self, name, path)
-
-
-def _check_endpoints(endpoints: Sequence[str], name: str) -> list[str]:
-    if isinstance(endpoints, str):
-        raise ValueError(f"{name} must be a list of endpoints, got the string {endpoints!r}")
-    out = []
-    for endpoint in endpoints:
-        if not isinstance(endpoint, str) or not _ENDPOINT.match(endpoint):
-            raise ValueError(f"{name} endpoint must look like 'tcp/127.0.0.1:7447', got {endpoint!r}")
-        out.append(endpoint)
-    return out
-
-
-def _listen_or_default(mode: str, listen: Sequence[str] | None) -> Sequence[str]:
-    if listen is None:
-        return LOOPBACK_LISTEN if mode == "peer" else ()
-    return listen
-
-
-def zenoh_config(
-    mode: str = "peer",
-    connect: Sequence[str] = (),
-    listen: Sequence[str] | None = None,
-    scouting: bool = False,
-    connect_timeout_s: float = 2.0,
-    tls: ZenohTls | None = None,
-) -> zenoh.Config:
-    """The Zenoh session configuration of the daemon.
-
-    Keys set: ``mode``; ``connect/endpoints`` when given; ``listen/endpoints`` always (None: a peer
-    listens on ``LOOPBACK_LISTEN``, a client nowhere; Zenoh's own default would be every
-    interface); ``scouting/multicast/enabled`` and ``scouting/gossip/enabled`` (both follow
-    ``scouting``); ``connect/timeout_ms`` (bounds one opening attempt) and
-    ``connect/exit_on_failure = false`` (a peer opens even when its connect endpoints are down and
-    Zenoh keeps trying them; a client still needs one router to open, hence the retry thread).
-    With ``tls``: ``transport/link/tls`` with the CA, the certificate and key for both connecting
-    and listening, ``enable_mtls`` and ``close_link_on_expiration``.
+    Keys set: ``mode``; ``connect/endpoints`` when given; ``listen/endpoints`` always (the section
+    resolves a missing ``listen``: a peer listens on ``LOOPBACK_LISTEN``, a client nowhere; Zenoh's
+    own default would be every interface); ``scouting/multicast/enabled`` and
+    ``scouting/gossip/enabled`` (both follow ``scouting``); ``connect/timeout_ms`` (bounds one
+    opening attempt) and ``connect/exit_on_failure = false`` (a peer opens even when its connect
+    endpoints are down and Zenoh keeps trying them; a client still needs one router to open, hence
+    the retry thread). With ``tls``: ``transport/link/tls`` with the CA, the certificate and key for
+    both connecting and listening, ``enable_mtls`` and ``close_link_on_expiration``.
 
     Raises
     ------
     ValueError
-        Naming a bad mode, endpoint or timeout.
+        Naming ``connect_timeout_s`` if it is not > 0.
     """
-    if mode not in _MODES:
-        raise ValueError(f"zenoh mode must be one of {_MODES}, got {mode!r}")
     if not connect_timeout_s > 0:
         raise ValueError(f"connect_timeout_s must be > 0, got {connect_timeout_s!r}")
-    config = zenoh.Config()
-    config.insert_json5("mode", json.dumps(mode))
-    connect = _check_endpoints(connect, "connect")
-    listen = _check_endpoints(_listen_or_default(mode, listen), "listen")
-    if connect:
-        config.insert_json5("connect/endpoints", json.dumps(connect))
-    config.insert_json5("listen/endpoints", json.dumps(listen))
-    config.insert_json5("scouting/multicast/enabled", json.dumps(bool(scouting)))
-    config.insert_json5("scouting/gossip/enabled", json.dumps(bool(scouting)))
-    config.insert_json5("connect/timeout_ms", json.dumps(int(connect_timeout_s * 1000)))
-    config.insert_json5("connect/exit_on_failure", "false")
+    session_config = zenoh.Config()
+    session_config.insert_json5("mode", json.dumps(config.mode))
+    if config.connect:
+        session_config.insert_json5("connect/endpoints", json.dumps(config.connect))
+    session_config.insert_json5("listen/endpoints", json.dumps(config.listen))
+    session_config.insert_json5("scouting/multicast/enabled", json.dumps(config.scouting))
+    session_config.insert_json5("scouting/gossip/enabled", json.dumps(config.scouting))
+    session_config.insert_json5("connect/timeout_ms", json.dumps(int(connect_timeout_s * 1000)))
+    session_config.insert_json5("connect/exit_on_failure", "false")
+    tls = config.tls
     if tls is not None:
         files = {
             "root_ca_certificate": str(tls.root_ca),
@@ -137,39 +87,32 @@ def zenoh_config(
             "listen_private_key": str(tls.private_key),
         }
         for key, value in files.items():
-            config.insert_json5(f"transport/link/tls/{key}", json.dumps(value))
-        config.insert_json5("transport/link/tls/enable_mtls", "true")  # both ends show a certificate
-        config.insert_json5("transport/link/tls/close_link_on_expiration", "true")
-        config.insert_json5(
+            session_config.insert_json5(f"transport/link/tls/{key}", json.dumps(value))
+        session_config.insert_json5("transport/link/tls/enable_mtls", "true")  # both ends show a certificate
+        session_config.insert_json5("transport/link/tls/close_link_on_expiration", "true")
+        session_config.insert_json5(
             "transport/link/tls/verify_name_on_connect", json.dumps(bool(tls.verify_name_on_connect))
         )
-    return config
+    return session_config
 
 
 def _is_loopback(endpoint: str) -> bool:
-    if endpoint.startswith("unixsock-"):  # a Unix socket: this machine only
+    protocol, _, address = endpoint.partition("/")
+    if protocol.startswith("unixsock-"):  # a Unix socket: this machine only
         return True
-    match = _HOST.match(endpoint)
-    if match is None:
-        return False
+    match = _HOST.match(address)
     host = (match["v6"] if match["v6"] is not None else match["host"]).lower()
     return host == "localhost" or host == "::1" or host.startswith("127.")
 
 
-def describe_exposure(
-    mode: str,
-    connect: Sequence[str] = (),
-    listen: Sequence[str] | None = None,
-    scouting: bool = False,
-    tls: ZenohTls | None = None,
-) -> str:
+def describe_exposure(config: ZenohConfig) -> str:
     """One line saying what a session with these settings exposes, for the log at start.
 
     E.g. ``zenoh peer session: listens on tcp/127.0.0.1:0 (this machine only), connects to
     nothing, scouting off, no TLS``; a listener beyond loopback or scouting on is called out as
     reachable from the network.
     """
-    listen = list(_listen_or_default(mode, listen))
+    listen, connect, tls = config.listen, config.connect, config.tls
     exposed = [ep for ep in listen if not _is_loopback(ep)]
     if not listen:
         listening = "listens nowhere"
@@ -179,10 +122,12 @@ def describe_exposure(
         listening = f"listens on {', '.join(listen)} (this machine only)"
     connecting = f"connects to {', '.join(connect)}" if connect else "connects to nothing"
     scouting_text = (
-        "scouting ON (multicast and gossip: discoverable on the network)" if scouting else "scouting off"
+        "scouting ON (multicast and gossip: discoverable on the network)"
+        if config.scouting
+        else "scouting off"
     )
     tls_text = f"TLS with mutual authentication as {tls.certificate}" if tls is not None else "no TLS"
-    return f"zenoh {mode} session: {listening}, {connecting}, {scouting_text}, {tls_text}"
+    return f"zenoh {config.mode} session: {listening}, {connecting}, {scouting_text}, {tls_text}"
 
 
 @dataclass(frozen=True)
@@ -209,17 +154,12 @@ class ZenohSink(Sink):
 
     Parameters
     ----------
+    config : ZenohConfig
+        The ``zenoh`` section: mode (a peer works without a router, a client goes through the
+        routers in ``connect``), ``connect`` and ``listen`` endpoints, scouting (off unless asked
+        for) and the TLS identity for ``tls/`` endpoints (docs/security.md).
     camera_id : str
         Key segment of every key expression.
-    mode : {"peer", "client"}
-        Peer (default) works without a router; client goes through the routers in ``connect``.
-    connect, listen : sequence of str
-        Zenoh endpoints, e.g. ``"tcp/192.168.1.10:7447"``; ``listen`` None: a peer listens on
-        ``tcp/127.0.0.1:0`` (this machine only), a client nowhere.
-    scouting : bool
-        Multicast and gossip scouting (discovery on the LAN); off unless asked for.
-    tls : ZenohTls, optional
-        TLS identity for ``tls/`` endpoints, with mutual authentication (docs/security.md).
     info : mapping, optional
         The reply of the ``info`` queryable, normally ``messages.info_message(...)``.
     camera_geo : CameraGeo, optional
@@ -234,13 +174,9 @@ class ZenohSink(Sink):
 
     def __init__(
         self,
+        config: ZenohConfig,
         camera_id: str,
         *,
-        mode: str = "peer",
-        connect: Sequence[str] = (),
-        listen: Sequence[str] | None = None,
-        scouting: bool = False,
-        tls: ZenohTls | None = None,
         info: Mapping[str, Any] | None = None,
         camera_geo: CameraGeo | None = None,
         connect_timeout_s: float = 2.0,
@@ -248,11 +184,11 @@ class ZenohSink(Sink):
     ) -> None:
         if not retry_max_s > 0:
             raise ValueError(f"retry_max_s must be > 0, got {retry_max_s!r}")
-        self._camera_id = messages.check_camera_id(camera_id)
+        self._camera_id = check_camera_id(camera_id)
         self._keys = messages.key_expressions(camera_id)
-        self._mode = mode
-        self._config = zenoh_config(mode, connect, listen, scouting, connect_timeout_s, tls)
-        log.info("%s", describe_exposure(mode, connect, listen, scouting, tls))
+        self._mode = config.mode
+        self._session_config = zenoh_config(config, connect_timeout_s)
+        log.info("%s", describe_exposure(config))
         info = dict(info) if info is not None else {}
         info.setdefault("camera_id", camera_id)
         info.setdefault("key_expressions", self._keys)
@@ -371,7 +307,7 @@ class ZenohSink(Sink):
             return
 
     def _open_and_declare(self) -> _Declared:
-        session = zenoh.open(self._config)
+        session = zenoh.open(self._session_config)
         try:
             json_enc = zenoh.Encoding.APPLICATION_JSON
             tracks = session.declare_publisher(

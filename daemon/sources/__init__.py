@@ -10,7 +10,7 @@ import re
 from pathlib import Path
 from urllib.parse import urlsplit
 
-from dronekey.daemon.config import SourceConfig
+from dronekey.daemon.config.source import SourceConfig
 from dronekey.daemon.errors import UsageError
 from dronekey.daemon.sources.base import (
     CapturedFrame,

@@ -26,7 +26,7 @@ import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 
-from dronekey.daemon.config import SourceConfig
+from dronekey.daemon.config.source import SourceConfig
 from dronekey.daemon.sources.base import (
     CapturedFrame,
     FrameReader,

@@ -23,7 +23,7 @@ from urllib.parse import urlsplit, urlunsplit
 import cv2
 import numpy as np
 
-from dronekey.daemon.config import NetworkSettings, V4l2Settings
+from dronekey.daemon.config.source import NetworkSettings, V4l2Settings
 from dronekey.daemon.sources.base import FrameReader, ReadResult, SourceOpenError, valid_bgr
 from dronekey.daemon.sources.sidecar import sidecar_camera
 from dronekey.daemon.sources.truncation import truncation

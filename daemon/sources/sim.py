@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import logging
 
-from dronekey.daemon.config import SimSettings
+from dronekey.daemon.config.source import SimSettings
 from dronekey.daemon.sources.base import FrameReader, ReadResult, SourceOpenError, valid_bgr
 from dronekey.geometry.camera import CameraModel
 

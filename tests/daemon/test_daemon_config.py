@@ -17,7 +17,9 @@ import pytest
 import yaml
 from daemon_media import encode_clip
 
-from dronekey.daemon.config import ConfigError, DaemonConfig, config_to_yaml, load_config
+from dronekey.daemon.config.daemon_config import DaemonConfig
+from dronekey.daemon.config.errors import ConfigError
+from dronekey.daemon.config.loading import config_to_yaml, load_config
 from dronekey.daemon.errors import ExitCode
 from dronekey.geometry.camera import CameraModel
 

@@ -11,7 +11,7 @@ import time
 import pytest
 from daemon_media import free_port, start_server, stop_process
 
-from dronekey.daemon.config import NetworkSettings, SourceConfig
+from dronekey.daemon.config.source import NetworkSettings, SourceConfig
 from dronekey.daemon.sources import Capture, SourceState, make_reader
 
 

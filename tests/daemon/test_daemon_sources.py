@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from daemon_media import FPS, damage_mjpeg_frames, damage_ts_packets, encode_clip, pattern_frame
 
-from dronekey.daemon.config import SourceConfig
+from dronekey.daemon.config.source import SourceConfig
 from dronekey.daemon.errors import UsageError
 from dronekey.daemon.sources import (
     Capture,
@@ -269,7 +269,7 @@ def test_sidecar_calibration_beside_the_video(tmp_path, media):
 
 
 def test_sim_source_renders_the_preset():
-    from dronekey.daemon.config import SimSettings
+    from dronekey.daemon.config.source import SimSettings
 
     reader = SimReader("seq13", SimSettings(frames=2))
     camera, _ = reader.bundled_camera()

@@ -1,20 +1,17 @@
-"""JSON messages of the daemon: track, status and info messages against their shipped JSON schemas.
-
-``schema_errors`` is a small JSON Schema (draft 2020-12) validator covering the keywords our schemas
-and Foxglove's use (jsonschema is not a dependency); test_mcap_sink.py reuses it.
-"""
+"""JSON messages of the daemon: track, status and info messages against their shipped JSON schemas
+(checked with ``json_checks.schema_errors``)."""
 
 from __future__ import annotations
 
-import base64
-import binascii
-import json
+import functools
 import math
 import re
 import time
 
 import numpy as np
 import pytest
+from factories import make_track
+from json_checks import schema_errors, strict_json
 
 from dronekey.daemon import messages
 from dronekey.daemon.geo import CameraGeo
@@ -22,100 +19,23 @@ from dronekey.daemon.sinks.base import FrameUpdate, Sink, SinkWorker
 from dronekey.daemon.sources import CaptureStats, SourceState
 from dronekey.daemon.status import PipelineCounters, status_figures, status_summary
 from dronekey.geometry.camera import CameraModel
-from dronekey.types import Track, TrackStatus
 
-_TYPES = {
-    "object": lambda v: isinstance(v, dict),
-    "array": lambda v: isinstance(v, list),
-    "string": lambda v: isinstance(v, str),
-    "integer": lambda v: isinstance(v, int) and not isinstance(v, bool),
-    "number": lambda v: isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v),
-    "boolean": lambda v: isinstance(v, bool),
-    "null": lambda v: v is None,
-}
-
-
-def schema_errors(value, schema: dict, path: str = "$") -> list[str]:
-    """Violations of ``schema`` by ``value`` (empty when valid)."""
-    errors: list[str] = []
-    kinds = schema.get("type")
-    if kinds is not None:
-        kinds = kinds if isinstance(kinds, list) else [kinds]
-        if not any(_TYPES[k](value) for k in kinds):
-            return [f"{path}: {value!r} is not of type {kinds}"]
-    if "const" in schema and value != schema["const"]:
-        errors.append(f"{path}: {value!r} != const {schema['const']!r}")
-    if "enum" in schema and value not in schema["enum"]:
-        errors.append(f"{path}: {value!r} not in {schema['enum']}")
-    if "oneOf" in schema:
-        matches = sum(not schema_errors(value, alt, path) for alt in schema["oneOf"])
-        if matches != 1:
-            errors.append(f"{path}: {value!r} matches {matches} of oneOf, not 1")
-    if isinstance(value, (int, float)) and not isinstance(value, bool):
-        if "minimum" in schema and value < schema["minimum"]:
-            errors.append(f"{path}: {value} < minimum {schema['minimum']}")
-        if "maximum" in schema and value > schema["maximum"]:
-            errors.append(f"{path}: {value} > maximum {schema['maximum']}")
-    if isinstance(value, str) and schema.get("contentEncoding") == "base64":
-        try:
-            base64.b64decode(value, validate=True)
-        except binascii.Error:
-            errors.append(f"{path}: not base64")
-    if isinstance(value, list):
-        if len(value) < schema.get("minItems", 0):
-            errors.append(f"{path}: {len(value)} items < minItems {schema['minItems']}")
-        if len(value) > schema.get("maxItems", math.inf):
-            errors.append(f"{path}: {len(value)} items > maxItems {schema['maxItems']}")
-        if "items" in schema:
-            for i, item in enumerate(value):
-                errors += schema_errors(item, schema["items"], f"{path}[{i}]")
-    if isinstance(value, dict):
-        props = schema.get("properties", {})
-        errors += [f"{path}: lacks required {k!r}" for k in schema.get("required", []) if k not in value]
-        for key, deps in schema.get("dependentRequired", {}).items():
-            if key in value:
-                errors += [f"{path}: {key!r} requires {d!r}" for d in deps if d not in value]
-        extra = schema.get("additionalProperties", True)
-        for key, item in value.items():
-            if key in props:
-                errors += schema_errors(item, props[key], f"{path}.{key}")
-            elif extra is False:
-                errors.append(f"{path}: unexpected property {key!r}")
-            elif isinstance(extra, dict):
-                errors += schema_errors(item, extra, f"{path}.{key}")
-    return errors
-
-
-def strict_json(payload: bytes):
-    """Parse JSON refusing the non-standard NaN / Infinity tokens."""
-
-    def refuse(token):
-        raise ValueError(f"invalid JSON token {token}")
-
-    return json.loads(payload, parse_constant=refuse)
-
-
-def make_track(
-    track_id: int = 3, *, nan: bool = False, keypoints: bool = True, heading_confidence: float = 0.82
-) -> Track:
-    return Track(
-        track_id=track_id,
-        t_ns=1_700_000_000_123_456_789,
-        status=TrackStatus.CONFIRMED,
-        position_m=np.array([10.0, -10.0, 10.0]),
-        velocity_mps=np.array([0.5, 0.0, -1.0]),
-        position_cov=np.diag([0.04, 0.04, 0.25]),
-        quaternion_wxyz=np.array([0.9238795, 0.0, 0.3826834, 0.0]),
-        rotation_std_rad=np.full(3, np.nan) if nan else np.array([0.01, 0.02, 0.03]),
-        keypoints_px=np.array([[900.0, 500.0], [950.0, 505.0], [948.0, 540.0], [902.0, 538.0]])
-        if keypoints
-        else None,
-        score=0.93,
-        reprojection_px=float("nan") if nan else 0.7,
-        hits=12,
-        age_s=0.4,
-        heading_confidence=float("nan") if nan else heading_confidence,
-    )
+# The track of these tests: measured (keypoints, score, reprojection), about 17 m away, yawed 45 degrees.
+measured_track = functools.partial(
+    make_track,
+    3,
+    t_ns=1_700_000_000_123_456_789,
+    position_m=(10.0, -10.0, 10.0),
+    velocity_mps=(0.5, 0.0, -1.0),
+    position_cov=np.diag([0.04, 0.04, 0.25]),
+    attitude=(0.9238795, 0.0, 0.3826834, 0.0),
+    keypoints_px=np.array([[900.0, 500.0], [950.0, 505.0], [948.0, 540.0], [902.0, 538.0]]),
+    score=0.93,
+    reprojection_px=0.7,
+    hits=12,
+    age_s=0.4,
+    heading_confidence=0.82,
+)
 
 
 # ----------------------------------------------------------------------------- schemas
@@ -129,7 +49,7 @@ def test_schemas_ship_as_package_data_and_declare_draft_2020_12(name):
 
 def test_validator_rejects_what_it_should():
     schema = messages.load_schema("track")
-    good = messages.track_message(make_track(), "cam0")
+    good = messages.track_message(measured_track(), "cam0")
     assert schema_errors(good, schema) == []
     assert schema_errors({**good, "track_id": "3"}, schema)
     assert schema_errors({**good, "position_m": [1.0, 2.0]}, schema)
@@ -144,7 +64,7 @@ def test_validator_rejects_what_it_should():
 
 # ----------------------------------------------------------------------------- track
 def test_track_message_carries_the_contract_fields_and_validates():
-    message = messages.track_message(make_track(), "cam0")
+    message = messages.track_message(measured_track(), "cam0")
     for key in ("camera_id", "track_id", "t_ns", "status", "position_m", "quaternion_wxyz", "velocity_mps",
                 "position_cov", "keypoints_px", "score", "reprojection_px",
                 "heading_confidence"):  # fmt: skip
@@ -166,7 +86,12 @@ def test_track_message_carries_the_contract_fields_and_validates():
 
 
 def test_nan_becomes_null_and_the_bytes_are_strict_json():
-    track = make_track(nan=True, keypoints=False)
+    track = measured_track(
+        rotation_std_rad=np.full(3, np.nan),
+        reprojection_px=float("nan"),
+        heading_confidence=float("nan"),
+        keypoints_px=None,
+    )
     track.velocity_mps = np.array([np.nan, np.inf, 0.0])
     payload = messages.to_json_bytes(messages.track_message(track, "cam0"))
     assert b"NaN" not in payload and b"Infinity" not in payload
@@ -185,7 +110,7 @@ def test_nan_becomes_null_and_the_bytes_are_strict_json():
      (float("nan"), None), (None, None)],
 )  # fmt: skip
 def test_heading_confidence_is_sent_in_0_1_or_null(confidence, sent):
-    track = make_track(heading_confidence=confidence)
+    track = measured_track(heading_confidence=confidence)
     decoded = strict_json(messages.to_json_bytes(messages.track_message(track, "cam0")))
     assert decoded["heading_confidence"] == (None if sent is None else pytest.approx(sent))
     assert schema_errors(decoded, messages.load_schema("track")) == []
@@ -196,13 +121,13 @@ def test_heading_confidence_is_sent_in_0_1_or_null(confidence, sent):
 @pytest.mark.parametrize("confidence", [1.2, -0.5, "sure"])
 def test_heading_confidence_out_of_range_names_itself(confidence):
     with pytest.raises(ValueError, match=f"heading_confidence must be .* got {re.escape(repr(confidence))}"):
-        messages.track_message(make_track(heading_confidence=confidence), "cam0")
+        messages.track_message(measured_track(heading_confidence=confidence), "cam0")
 
 
 def test_geodetic_fields_with_a_camera_pose():
     # Camera at the equator looking north, level: camera z is north, x east, y down.
     geo = CameraGeo(0.0, 10.0, 100.0)
-    track = make_track()
+    track = measured_track()
     track.position_m = np.array([0.0, -50.0, 1000.0])  # 1 km north, 50 m up
     track.velocity_mps = np.array([2.0, 0.0, 0.0])  # eastwards
     message = messages.track_message(track, "cam0", camera_geo=geo)
@@ -215,18 +140,18 @@ def test_geodetic_fields_with_a_camera_pose():
     assert message["bearing_true"]["elevation_deg"] == pytest.approx(math.degrees(math.atan2(50.0, 1000.0)))
     assert message["velocity_ned_mps"] == pytest.approx([0.0, 2.0, 0.0])
     assert schema_errors(strict_json(messages.to_json_bytes(message)), messages.load_schema("track")) == []
-    west = make_track()
+    west = measured_track()
     west.position_m = np.array([-100.0, 0.0, 0.0])  # straight left = west
     assert messages.track_message(west, "cam0", geo)["bearing_true"]["azimuth_deg"] == pytest.approx(270.0)
 
 
 def test_bad_inputs_name_the_argument():
-    track = make_track()
+    track = measured_track()
     track.position_cov = np.eye(2)
     with pytest.raises(ValueError, match="position_cov"):
         messages.track_message(track, "cam0")
     with pytest.raises(ValueError, match="camera_id"):
-        messages.track_message(make_track(), "cam/0")
+        messages.track_message(measured_track(), "cam/0")
     with pytest.raises(ValueError, match="camera_id"):
         messages.key_expressions("*")
     assert messages.key_expressions("north-1")["tracks"] == "dronekey/north-1/tracks"

@@ -4,8 +4,8 @@
 ``dronekey.xml`` (common.xml + TARGET_ABSOLUTE / TARGET_RELATIVE); ``use_dialect`` gives any
 ``mavutil`` connection that dialect (tools and tests listening to the daemon use it).
 
-Names are imported on first use, so importing one submodule (e.g. ``target_state`` for the SBS-1
-output, or ``dialect``) does not pull in pymavlink's ``mavutil`` and the sink.
+Names are imported on first use, so importing one submodule (e.g. ``link`` or ``peers`` for the
+config's checks, or ``dialect``) does not pull in pymavlink's ``mavutil`` and the sink.
 """
 
 from __future__ import annotations
@@ -13,9 +13,6 @@ from __future__ import annotations
 import importlib
 
 _EXPORTS = {
-    "DEFAULT_COMPID": "sink",
-    "DEFAULT_SYSID": "sink",
-    "DEFAULT_URL": "sink",
     "MavlinkSink": "sink",
     "DialectError": "dialect",
     "load_dialect": "dialect",

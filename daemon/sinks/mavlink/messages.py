@@ -25,18 +25,18 @@ from __future__ import annotations
 
 import math
 import re
-import time
 
 import numpy as np
 
 from dronekey.daemon.geo import CameraGeo
 from dronekey.daemon.messages import check_heading_confidence
-from dronekey.daemon.sinks.target_state import TargetGeodetic, callsign, icao_address
+from dronekey.daemon.sinks.target_state import TargetGeodetic, callsign, icao_address, target_geodetic
 from dronekey.geometry.rotations import matrix_to_quat_wxyz, ned_from_camera, quat_wxyz_to_matrix
 from dronekey.types import Track
 
 __all__ = [
     "FRD_FROM_CAM",
+    "TRACK_MESSAGE_NAMES",
     "adsb_vehicle",
     "autopilot_version",
     "encode_version",
@@ -45,22 +45,19 @@ __all__ = [
     "sensor_quaternion",
     "target_absolute",
     "target_relative",
-    "unix_time_us",
+    "track_messages",
 ]
 
 # Camera frame (x right, y down, z forward) -> sensor body FRD (x forward, y right, z down): the
 # mount's FRD frame is the NED frame of a level, north-looking mount (one definition, in rotations).
 FRD_FROM_CAM = ned_from_camera(0.0, 0.0, 0.0)
 
+# The per-track messages by id, in the order ``track_messages`` gives them.
+TARGET_RELATIVE, TARGET_ABSOLUTE, ADSB_VEHICLE = 511, 510, 246
+TRACK_MESSAGE_NAMES = {511: "TARGET_RELATIVE", 510: "TARGET_ABSOLUTE", 246: "ADSB_VEHICLE"}
+
 _NO_QUATERNION = (0.0, 0.0, 0.0, 0.0)
 _UNKNOWN3 = (math.nan, math.nan, math.nan)
-# Timestamps before 2001-09-09 are stream times (file PTS), not Unix time.
-_MIN_UNIX_NS = 1_000_000_000 * 1_000_000_000
-
-
-def unix_time_us(t_ns: int) -> int:
-    """``t_ns`` in µs if it is Unix time (live sources), else the current Unix time (file PTS)."""
-    return int(t_ns) // 1000 if int(t_ns) >= _MIN_UNIX_NS else time.time_ns() // 1000
 
 
 def _finite(a: np.ndarray) -> bool:
@@ -129,7 +126,7 @@ def target_relative(dialect, track: Track, q_sensor: tuple[float, ...], timestam
     q_sensor : (4,) floats
         Sensor FRD -> local NED (w, x, y, z), or zeros (``sensor_quaternion``).
     timestamp_us : int
-        Unix time of the state, µs (``unix_time_us``).
+        Unix time of the state, µs (``target_state.unix_time_us``).
 
     Returns
     -------
@@ -252,6 +249,33 @@ def adsb_vehicle(dialect, track: Track, state: TargetGeodetic, icao_base: int, s
         flags,
         0,
     )
+
+
+def track_messages(
+    dialect,
+    track: Track,
+    timestamp_us: int,
+    q_sensor: tuple[float, ...],
+    geo: CameraGeo | None,
+    icao_base: int,
+    simulated: bool = False,
+) -> list[tuple[int, object]]:
+    """(message id, message) of one track: TARGET_RELATIVE, and with the camera's geodetic pose
+    ``geo`` also TARGET_ABSOLUTE and ADSB_VEHICLE (``icao_base``, ``simulated``: ``adsb_vehicle``).
+
+    Raises
+    ------
+    ValueError
+        If the track's position is not finite, or naming ``heading_confidence`` if it is outside [0, 1].
+    """
+    if not _finite(np.asarray(track.position_m, dtype=np.float64)):
+        raise ValueError("position is not finite")
+    out = [(TARGET_RELATIVE, target_relative(dialect, track, q_sensor, timestamp_us))]
+    if geo is not None:
+        state = target_geodetic(track, geo)
+        out.append((TARGET_ABSOLUTE, target_absolute(dialect, track, state, geo, timestamp_us)))
+        out.append((ADSB_VEHICLE, adsb_vehicle(dialect, track, state, icao_base, simulated)))
+    return out
 
 
 def heartbeat(dialect, mav_type: int):

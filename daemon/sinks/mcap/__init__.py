@@ -1,1 +1,2 @@
-"""The MCAP log: the sink (``sink``) and the Foxglove messages it writes (``foxglove``)."""
+"""The MCAP log: the sink (``sink``), its files (``recording``) and their retention (``retention``), the
+camera images (``images``), and the Foxglove messages (``foxglove``) and schemas (``foxglove_schemas``)."""

@@ -10,10 +10,12 @@ import time
 
 import psutil
 import pytest
+from factories import make_track
 from pydantic import ValidationError
-from test_mavlink_sink import GCS_COMPID, GCS_SYSID, KEY, GroundStation, connect, make_track, update
+from test_mavlink_sink import GCS_COMPID, GCS_SYSID, KEY, GroundStation, connect, update
 
-from dronekey.daemon.config import DaemonConfig, config_to_yaml
+from dronekey.daemon.config.daemon_config import DaemonConfig
+from dronekey.daemon.config.loading import config_to_yaml
 from dronekey.daemon.sinks.mavlink import MavlinkSink
 from dronekey.daemon.sinks.mavlink.verify import StreamTimestamps
 
@@ -93,7 +95,7 @@ def target_relatives_over(sink, station, n: int) -> int:
 
 def test_sockets_bind_to_loopback_and_the_start_line_says_who_may_command(make_sink, stations, caplog):
     gcs = stations()
-    with caplog.at_level(logging.INFO, logger="dronekey.daemon.sinks.mavlink.sink"):
+    with caplog.at_level(logging.INFO, logger="dronekey.daemon.sinks.mavlink.connection"):
         out = make_sink(gcs.url)  # udpout: pymavlink would leave the socket to bind to 0.0.0.0
         port = free_udp_port()
         listening = make_sink(f"udpin:{port}")  # no host given: 127.0.0.1

@@ -8,14 +8,14 @@ import select
 import socket
 import time
 
-import numpy as np
 import pytest
+from factories import make_track
 from pymavlink import mavutil
 
+from dronekey.daemon.config.mavlink import MavlinkConfig
 from dronekey.daemon.geo import CameraGeo
 from dronekey.daemon.sinks.base import FrameUpdate, SinkWorker
 from dronekey.daemon.sinks.mavlink import MavlinkSink, SigningKeyError, use_dialect
-from dronekey.geometry.rotations import matrix_to_quat_wxyz
 from dronekey.types import Track, TrackStatus
 
 SYSID, COMPID = 42, 191
@@ -78,23 +78,6 @@ def gcs(dialect):
     station = GroundStation(dialect)
     yield station
     station.close()
-
-
-def make_track(
-    track_id=7, status=TrackStatus.CONFIRMED, p=(1.0, -2.0, 30.0), heading_confidence=1.0
-) -> Track:
-    R = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
-    return Track(
-        track_id=track_id,
-        t_ns=time.time_ns(),
-        status=status,
-        position_m=np.array(p),
-        velocity_mps=np.array([2.0, 0.0, 1.0]),
-        position_cov=np.diag([0.01, 0.04, 0.25]),
-        quaternion_wxyz=matrix_to_quat_wxyz(R),
-        rotation_std_rad=np.array([0.01, 0.02, 0.03]),
-        heading_confidence=heading_confidence,
-    )
 
 
 def update(*tracks: Track, index: int = 0) -> FrameUpdate:
@@ -216,10 +199,10 @@ def test_bad_arguments_are_named(dialect, tmp_path):
         ({"url": "udpout:1.2.3.4:5", "compid": 0}, "compid"),
     ):
         with pytest.raises(ValueError, match=word):
-            MavlinkSink(**kwargs)
+            MavlinkConfig(**kwargs)
     (tmp_path / "bad.key").write_bytes(b"x" * 31)
     with pytest.raises(SigningKeyError, match=r"bad\.key"):
-        MavlinkSink("udpout:127.0.0.1:14550", signing_key_file=tmp_path / "bad.key")
+        MavlinkSink(MavlinkConfig(signing_key=tmp_path / "bad.key"))
 
 
 # ---------------------------------------------------------------- two-way

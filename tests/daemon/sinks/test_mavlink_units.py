@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from factories import make_track
 
 from dronekey.daemon.geo import CameraGeo
 from dronekey.daemon.sinks.mavlink import messages
@@ -26,11 +27,11 @@ from dronekey.daemon.sinks.target_state import (
     callsign,
     icao_address,
     target_geodetic,
+    unix_time_us,
     validate_icao_base,
     validate_statuses,
 )
-from dronekey.geometry.rotations import matrix_to_quat_wxyz, quat_wxyz_to_matrix
-from dronekey.types import Track, TrackStatus
+from dronekey.geometry.rotations import quat_wxyz_to_matrix
 
 GEO = CameraGeo.parse("47.3977,8.5456,488.0,30,5,2")
 
@@ -38,21 +39,6 @@ GEO = CameraGeo.parse("47.3977,8.5456,488.0,30,5,2")
 @pytest.fixture(scope="module")
 def dialect(tmp_path_factory):
     return load_dialect(tmp_path_factory.mktemp("mavlink-dialect"))
-
-
-def make_track(R=None, p=(1.0, -2.0, 30.0), v=(0.5, 0.0, -1.0), track_id=7, heading_confidence=1.0) -> Track:
-    R = np.eye(3) if R is None else R
-    return Track(
-        track_id=track_id,
-        t_ns=time.time_ns(),
-        status=TrackStatus.CONFIRMED,
-        position_m=np.array(p, dtype=float),
-        velocity_mps=np.array(v, dtype=float),
-        position_cov=np.diag([0.01, 0.04, 0.25]),
-        quaternion_wxyz=matrix_to_quat_wxyz(R),
-        rotation_std_rad=np.array([0.01, 0.02, 0.03]),
-        heading_confidence=heading_confidence,
-    )
 
 
 def random_rotation(rng) -> np.ndarray:
@@ -119,7 +105,7 @@ def test_target_relative_frame_mapping(dialect):
     rng = np.random.default_rng(3)
     for _ in range(5):
         R = random_rotation(rng)
-        track = make_track(R=R, p=rng.normal(size=3) * 10)
+        track = make_track(attitude=R, position_m=rng.normal(size=3) * 10)
         msg = messages.target_relative(dialect, track, messages.sensor_quaternion(GEO), 123)
         p_frd = np.array([msg.x, msg.y, msg.z])
         # x forward = camera z, y right = camera x, z down = camera y
@@ -178,8 +164,8 @@ def test_the_twin_yaw_differs_by_pi_whatever_the_tilt(dialect):
     Rz_pi = np.diag([-1.0, -1.0, 1.0])
     for _ in range(20):
         R = random_rotation(rng)
-        msg = messages.target_relative(dialect, make_track(R=R), (0, 0, 0, 0), 1)
-        twin = messages.target_relative(dialect, make_track(R=R @ Rz_pi), (0, 0, 0, 0), 1)
+        msg = messages.target_relative(dialect, make_track(attitude=R), (0, 0, 0, 0), 1)
+        twin = messages.target_relative(dialect, make_track(attitude=R @ Rz_pi), (0, 0, 0, 0), 1)
         d = _yaw(quat_wxyz_to_matrix(np.array(twin.q_target))) - _yaw(
             quat_wxyz_to_matrix(np.array(msg.q_target))
         )
@@ -198,7 +184,7 @@ def test_the_twin_yaw_differs_by_pi_whatever_the_tilt(dialect):
     ],
 )
 def test_target_relative_yaw_std_never_claims_a_surer_heading(dialect, confidence, rotation_std, yaw_std):
-    track = make_track(R=random_rotation(np.random.default_rng(2)), heading_confidence=confidence)
+    track = make_track(attitude=random_rotation(np.random.default_rng(2)), heading_confidence=confidence)
     track.rotation_std_rad = np.array([0.01, rotation_std, 0.03])
     decoded = _wire(dialect, messages.target_relative(dialect, track, messages.sensor_quaternion(GEO), 123))
     assert decoded.get_type() == "TARGET_RELATIVE" and decoded.id == 7
@@ -218,7 +204,7 @@ def test_target_relative_yaw_std_never_claims_a_surer_heading(dialect, confidenc
 def test_target_absolute_and_adsb_vehicle(dialect):
     rng = np.random.default_rng(5)
     R = random_rotation(rng)
-    track = make_track(R=R, v=(0.0, 0.0, 4.0))
+    track = make_track(attitude=R, velocity_mps=(0.0, 0.0, 4.0))
     state = target_geodetic(track, GEO)
     lat, lon, alt = GEO.geodetic(track.position_m)
     absolute = messages.target_absolute(dialect, track, state, GEO, 99)
@@ -246,7 +232,7 @@ def test_target_absolute_and_adsb_vehicle(dialect):
 
 
 def test_adsb_hovering_track_has_no_heading(dialect):
-    track = make_track(v=(0.0, 0.0, 0.0))
+    track = make_track(velocity_mps=(0.0, 0.0, 0.0))
     adsb = messages.adsb_vehicle(dialect, track, target_geodetic(track, GEO), 0xF00000, simulated=True)
     assert not adsb.flags & dialect.ADSB_FLAGS_VALID_HEADING
     assert adsb.flags & dialect.ADSB_FLAGS_SIMULATED
@@ -261,8 +247,8 @@ def test_ids_versions_and_time():
         validate_statuses(["confirmed", "flying"])
     assert messages.encode_version("1.2.3") == (1 << 24) | (2 << 16) | (3 << 8) | 255
     assert messages.encode_version("0.1.0.dev4") & 0xFF == 0
-    assert messages.unix_time_us(1_700_000_000_123_456_789) == 1_700_000_000_123_456
-    assert abs(messages.unix_time_us(5_000_000) - time.time_ns() // 1000) < 5_000_000  # file PTS -> now
+    assert unix_time_us(1_700_000_000_123_456_789) == 1_700_000_000_123_456
+    assert abs(unix_time_us(5_000_000) - time.time_ns() // 1000) < 5_000_000  # file PTS -> now
 
 
 # ---------------------------------------------------------------- stream intervals

@@ -21,16 +21,20 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import paths
 import pytest
+from factories import make_track
+from json_checks import schema_errors, strict_json
 from mcap.reader import NonSeekingReader, make_reader
 from mcap.records import Channel, Footer, Message, Schema
 from mcap.stream_reader import StreamReader
-from test_messages import schema_errors, strict_json
 
 from dronekey.daemon import messages
+from dronekey.daemon.config.mcap import McapConfig
 from dronekey.daemon.sinks.base import FrameUpdate
-from dronekey.daemon.sinks.mcap import foxglove
-from dronekey.daemon.sinks.mcap.sink import TOPICS, McapSink
+from dronekey.daemon.sinks.mcap import foxglove, foxglove_schemas
+from dronekey.daemon.sinks.mcap.recording import TOPICS
+from dronekey.daemon.sinks.mcap.sink import McapSink
 from dronekey.geometry.camera import CameraModel
 from dronekey.types import KeypointDetection, Track, TrackStatus
 
@@ -56,14 +60,15 @@ def picture(seed: int = 0) -> np.ndarray:
 
 
 def track(track_id: int, t_ns: int, *, z: float = 20.0) -> Track:
-    return Track(
-        track_id=track_id,
+    """A measured track of the test frames: keypoints beside the detection's, tilted 45 degrees."""
+    return make_track(
+        track_id,
         t_ns=t_ns,
-        status=TrackStatus.CONFIRMED,
-        position_m=np.array([0.5 * track_id, -1.0, z]),
-        velocity_mps=np.array([1.0, 0.0, 0.0]),
+        position_m=(0.5 * track_id, -1.0, z),
+        velocity_mps=(1.0, 0.0, 0.0),
         position_cov=np.eye(3) * 0.01,
-        quaternion_wxyz=np.array([0.9238795, 0.3826834, 0.0, 0.0]),
+        attitude=(0.9238795, 0.3826834, 0.0, 0.0),
+        rotation_std_rad=(np.nan, np.nan, np.nan),
         keypoints_px=KEYPOINTS + 3 * track_id,
         score=0.9,
         reprojection_px=0.6,
@@ -139,7 +144,7 @@ def foxglove_parser_errors(schema: dict, path: str = "") -> list[str]:
 
 # ----------------------------------------------------------------------------- the normal path
 def test_close_finalises_a_file_with_every_channel_schema_and_count(tmp_path):
-    sink = McapSink(tmp_path, camera(), "cam0", image_rate_hz=2.0, image_max_width=960)
+    sink = McapSink(McapConfig(dir=tmp_path, image_rate_hz=2.0, image_max_width=960), camera(), "cam0")
     img = picture()
     for i in range(30):  # 1 s of frames
         sink.handle_update(update(i, image=img))
@@ -173,7 +178,7 @@ def test_close_finalises_a_file_with_every_channel_schema_and_count(tmp_path):
     assert all(ci.compression == "zstd" for ci in summary.chunk_indexes)
 
     # Foxglove messages validate against their channel's schema, ours against the contract schemas
-    # (the channel carries a Foxglove-typed rendition of those, see foxglove.foxglove_compatible).
+    # (the channel carries a Foxglove-typed rendition of those, see foxglove_schemas.foxglove_compatible).
     for topic in ("/camera/image", "/camera/calibration", "/dronekey/annotations", "/tf"):
         schema = json.loads(summary.schemas[channels[topic].schema_id].data)
         for _, message in by_topic[topic]:
@@ -257,10 +262,10 @@ def test_worker_queues_the_frame_only_for_the_images_written(tmp_path):
         (path,) = mcap_files(sink._directory)
         return [t for t, _ in read_finalised(path)[1]["/camera/image"]]
 
-    direct = McapSink(tmp_path / "direct", camera(), "cam0", image_rate_hz=2.0)
+    direct = McapSink(McapConfig(dir=tmp_path / "direct", image_rate_hz=2.0), camera(), "cam0")
     for i, t in enumerate(times):
         direct.handle_update(update(i, image=img, t0_ns=t - i * FRAME_NS))
-    queued = McapSink(tmp_path / "queued", camera(), "cam0", image_rate_hz=2.0)
+    queued = McapSink(McapConfig(dir=tmp_path / "queued", image_rate_hz=2.0), camera(), "cam0")
     carried = []
     original = queued.handle_update
 
@@ -280,19 +285,19 @@ def test_worker_queues_the_frame_only_for_the_images_written(tmp_path):
 
 
 def test_mcap_schemas_are_what_foxglove_can_parse():
-    for name, schema in foxglove.FOXGLOVE_SCHEMAS.items():
+    for name, schema in foxglove_schemas.FOXGLOVE_SCHEMAS.items():
         assert foxglove_parser_errors(schema) == [], name
     contract = messages.load_schema("track")
     assert foxglove_parser_errors(contract)  # nullable types and 3x3 lists: Foxglove would refuse it
-    reduced = foxglove.foxglove_compatible(contract)
+    reduced = foxglove_schemas.foxglove_compatible(contract)
     assert foxglove_parser_errors(reduced) == []
     assert "position_cov" not in reduced["properties"] and "position_cov" in reduced["$comment"]
     assert reduced["properties"]["reprojection_px"]["type"] == "number"
-    assert foxglove_parser_errors(foxglove.foxglove_compatible(messages.load_schema("status"))) == []
+    assert foxglove_parser_errors(foxglove_schemas.foxglove_compatible(messages.load_schema("status"))) == []
 
 
 def test_status_log_time_follows_the_frame_clock(tmp_path):
-    sink = McapSink(tmp_path, camera(), "cam0", image_rate_hz=0)
+    sink = McapSink(McapConfig(dir=tmp_path, image_rate_hz=0), camera(), "cam0")
     t0 = 5_000_000_000  # a file source: stream PTS, far from the wall clock
     sink.handle_status(status(time.time_ns()))  # before any frame: waits for the first one
     for i in range(3):
@@ -308,17 +313,22 @@ def test_status_log_time_follows_the_frame_clock(tmp_path):
 
 def test_bad_arguments_name_themselves(tmp_path):
     with pytest.raises(ValueError, match="compression"):
-        McapSink(tmp_path, camera(), "cam0", compression="brotli")
+        McapSink(McapConfig(dir=tmp_path, compression="brotli"), camera(), "cam0")
     with pytest.raises(ValueError, match="jpeg_quality"):
-        McapSink(tmp_path, camera(), "cam0", jpeg_quality=0)
+        McapSink(McapConfig(dir=tmp_path, jpeg_quality=0), camera(), "cam0")
     with pytest.raises(ValueError, match="camera_id"):
-        McapSink(tmp_path, camera(), "cam 0")
+        McapSink(McapConfig(dir=tmp_path), camera(), "cam 0")
     assert list(tmp_path.iterdir()) == []
 
 
 # ----------------------------------------------------------------------------- rotation and retention
 def test_rotation_by_size_finalises_each_file_with_all_channels_and_calibration(tmp_path):
-    sink = McapSink(tmp_path, camera(), "cam0", image_rate_hz=30.0, rotate_size_mb=0.1, chunk_size=64 * 1024)
+    sink = McapSink(
+        McapConfig(dir=tmp_path, image_rate_hz=30.0, rotate_size_mb=0.1),
+        camera(),
+        "cam0",
+        chunk_size=64 * 1024,
+    )
     pictures = [picture(k) for k in range(4)]
     for i in range(40):
         sink.handle_update(update(i, image=pictures[i % 4]))
@@ -339,7 +349,7 @@ def test_rotation_by_size_finalises_each_file_with_all_channels_and_calibration(
 
 
 def test_rotation_by_duration(tmp_path):
-    sink = McapSink(tmp_path, camera(), "cam0", image_rate_hz=0, rotate_duration_s=0.2)
+    sink = McapSink(McapConfig(dir=tmp_path, image_rate_hz=0, rotate_duration_s=0.2), camera(), "cam0")
     for i in range(6):
         sink.handle_update(update(i))
         time.sleep(0.1)
@@ -362,12 +372,9 @@ def test_retention_deletes_only_our_oldest_recordings(tmp_path):
     os.utime(ours_old, (1_577_836_800, 1_577_836_800))
 
     sink = McapSink(
-        tmp_path,
+        McapConfig(dir=tmp_path, image_rate_hz=30.0, rotate_size_mb=0.1, retention_total_mb=0.25),
         camera(),
         "cam0",
-        image_rate_hz=30.0,
-        rotate_size_mb=0.1,
-        retention_total_mb=0.25,
         chunk_size=64 * 1024,
     )
     pictures = [picture(k) for k in range(4)]
@@ -391,7 +398,7 @@ def test_unwritable_folder_is_reported_and_recovered(tmp_path):
     blocker = tmp_path / "blocker"
     blocker.write_text("a file where the folder should be")
     folder = blocker / "recordings"
-    sink = McapSink(folder, camera(), "cam0", image_rate_hz=0, retry_interval_s=0.2)
+    sink = McapSink(McapConfig(dir=folder, image_rate_hz=0), camera(), "cam0", retry_interval_s=0.2)
     for i in range(5):
         sink.handle_update(update(i))  # must not raise
     sink.handle_status(status(1))
@@ -412,7 +419,9 @@ def test_unwritable_folder_is_reported_and_recovered(tmp_path):
 
 
 def test_full_disk_stops_recording_but_not_tracking(tmp_path):
-    sink = McapSink(tmp_path, camera(), "cam0", min_free_mb=1e12, retry_interval_s=0.05)  # "needs" 1 EB free
+    sink = McapSink(
+        McapConfig(dir=tmp_path, min_free_mb=1e12), camera(), "cam0", retry_interval_s=0.05
+    )  # "needs" 1 EB free
     for i in range(3):
         sink.handle_update(update(i, image=picture()))
         time.sleep(0.06)
@@ -426,8 +435,10 @@ def test_full_disk_stops_recording_but_not_tracking(tmp_path):
 
 
 def test_default_min_free_is_the_lesser_of_500_mb_and_5_percent_said_once(tmp_path, caplog):
-    caplog.set_level(logging.INFO, logger="dronekey.daemon.sinks.mcap.sink")
-    sink = McapSink(tmp_path / "not" / "yet", camera(), "cam0", image_rate_hz=0)  # measured on its parent
+    caplog.set_level(logging.INFO, logger="dronekey.daemon.sinks.mcap.retention")
+    sink = McapSink(
+        McapConfig(dir=tmp_path / "not" / "yet", image_rate_hz=0), camera(), "cam0"
+    )  # measured on its parent
     expected_mb = min(500.0, 0.05 * shutil.disk_usage(tmp_path).total / 1e6)
     assert sink.health()["min_free_mb"] == pytest.approx(expected_mb, abs=0.1)
     for i in range(3):
@@ -435,21 +446,30 @@ def test_default_min_free_is_the_lesser_of_500_mb_and_5_percent_said_once(tmp_pa
     sink.close()
     said = [r.getMessage() for r in caplog.records if "MB free" in r.getMessage()]
     assert len(said) == 1 and "the lesser of 500 MB and 5 % of the disk" in said[0], said
-    assert McapSink(tmp_path, camera(), "cam0", min_free_mb=0).health()["min_free_mb"] == 0
+    assert McapSink(McapConfig(dir=tmp_path, min_free_mb=0), camera(), "cam0").health()["min_free_mb"] == 0
 
+
+# A child that imports this module (and the helpers it imports from tests/).
+_WITH_TEST_HELPERS = {
+    **os.environ,
+    "PYTHONPATH": os.pathsep.join(
+        [str(Path(__file__).parent), str(paths.TESTS), os.environ.get("PYTHONPATH", "")]
+    ),
+}
 
 _REFUSED_WRITER = textwrap.dedent(
     """
     import json, resource, signal, sys, time
-    sys.path.insert(0, sys.argv[3])
     from test_mcap_sink import camera, picture, update
+    from dronekey.daemon.config.mcap import McapConfig
     from dronekey.daemon.sinks.mcap.sink import McapSink
 
     # Writes past RLIMIT_FSIZE fail with EFBIG once SIGXFSZ is ignored: a disk that is full (ENOSPC)
     # for this process only. min_free_mb 0: the free-space check does not stop the attempts first.
     signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
     resource.setrlimit(resource.RLIMIT_FSIZE, (int(sys.argv[2]), resource.RLIM_INFINITY))
-    sink = McapSink(sys.argv[1], camera(), "cam0", min_free_mb=0, chunk_size=1024, retry_interval_s=0.01)
+    config = McapConfig(dir=sys.argv[1], min_free_mb=0)
+    sink = McapSink(config, camera(), "cam0", chunk_size=1024, retry_interval_s=0.01)
     for i in range(20):
         sink.handle_update(update(i, image=picture()))
         time.sleep(0.02)
@@ -462,8 +482,8 @@ _REFUSED_WRITER = textwrap.dedent(
 @pytest.mark.parametrize("file_limit", [0, 4096])  # the header fails; the header fits, the first chunk fails
 def test_a_full_disk_leaves_no_empty_files(tmp_path, file_limit):
     result = subprocess.run(
-        [sys.executable, "-c", _REFUSED_WRITER, str(tmp_path), str(file_limit), str(Path(__file__).parent)],
-        capture_output=True, text=True, timeout=60,
+        [sys.executable, "-c", _REFUSED_WRITER, str(tmp_path), str(file_limit)],
+        capture_output=True, text=True, timeout=60, env=_WITH_TEST_HELPERS,
     )  # fmt: skip
     assert result.returncode == 0, result.stderr
     report = json.loads(result.stdout)
@@ -477,11 +497,11 @@ def test_a_full_disk_leaves_no_empty_files(tmp_path, file_limit):
 _KILLED_WRITER = textwrap.dedent(
     """
     import sys, time
-    sys.path.insert(0, sys.argv[2])
     from test_mcap_sink import camera, picture, update
+    from dronekey.daemon.config.mcap import McapConfig
     from dronekey.daemon.sinks.mcap.sink import McapSink
 
-    sink = McapSink(sys.argv[1], camera(), "cam0", image_rate_hz=10.0, chunk_max_age_s=0.2)
+    sink = McapSink(McapConfig(dir=sys.argv[1], image_rate_hz=10.0), camera(), "cam0", chunk_max_age_s=0.2)
     img = picture()
     i = 0
     while True:
@@ -508,7 +528,8 @@ def read_salvaged(path: Path) -> tuple[list, Exception | None]:
 
 def test_sigkill_leaves_completed_chunks_readable(tmp_path):
     child = subprocess.Popen(
-        [sys.executable, "-c", _KILLED_WRITER, str(tmp_path), str(Path(__file__).parent)],
+        [sys.executable, "-c", _KILLED_WRITER, str(tmp_path)],
+        env=_WITH_TEST_HELPERS,
         stdout=subprocess.PIPE,
         text=True,
     )

@@ -6,29 +6,18 @@ import datetime as dt
 import socket
 import time
 
-import numpy as np
 import pytest
+from factories import make_track
 
-from dronekey.daemon.config import Sbs1Config
+from dronekey.daemon.config.sbs1 import Sbs1Config
 from dronekey.daemon.geo import CameraGeo
 from dronekey.daemon.sinks.base import FrameUpdate
-from dronekey.daemon.sinks.sbs1 import Sbs1Sink, parse_listen_address, sbs1_lines
+from dronekey.daemon.sinks.sbs1 import Sbs1Sink, sbs1_lines
 from dronekey.daemon.sinks.target_state import target_geodetic
 from dronekey.types import Track, TrackStatus
 
 GEO = CameraGeo.parse("47.3977,8.5456,488.0,30,5,0")
-
-
-def make_track(track_id=7, status=TrackStatus.CONFIRMED, p=(1.0, -2.0, 30.0), v=(2.0, 0.0, 1.0)) -> Track:
-    return Track(
-        track_id=track_id,
-        t_ns=time.time_ns(),
-        status=status,
-        position_m=np.array(p),
-        velocity_mps=np.array(v),
-        position_cov=np.eye(3) * 0.01,
-        quaternion_wxyz=np.array([1.0, 0.0, 0.0, 0.0]),
-    )
+ANY_PORT = Sbs1Config(listen="127.0.0.1:0")  # a free port of this machine
 
 
 def update(*tracks: Track) -> FrameUpdate:
@@ -37,7 +26,7 @@ def update(*tracks: Track) -> FrameUpdate:
 
 @pytest.fixture
 def sink():
-    s = Sbs1Sink("127.0.0.1:0", GEO)
+    s = Sbs1Sink(ANY_PORT, GEO)
     yield s
     s.close()
 
@@ -97,12 +86,12 @@ def test_callsign_repeats_only_now_and_then(sink):
 
 
 def test_slow_client_is_dropped_and_others_keep_receiving():
-    sink = Sbs1Sink("127.0.0.1:0", GEO, max_pending_bytes=16384)
+    sink = Sbs1Sink(ANY_PORT, GEO, max_pending_bytes=16384)
     try:
         slow = connect(sink, rcvbuf=4096)  # never reads
         fast = connect(sink)
         fast.settimeout(0)
-        tracks = [make_track(track_id=i, p=(i, 0.0, 50.0)) for i in range(5)]
+        tracks = [make_track(i, position_m=(i, 0.0, 50.0)) for i in range(5)]
         updates = 0
         while not sink.health()["clients_dropped_slow"] and updates < 20000:
             sink.handle_update(update(*tracks))
@@ -139,29 +128,32 @@ def test_disconnected_client_is_forgotten(sink):
 
 def test_refuses_without_camera_geo_or_with_bad_address():
     with pytest.raises(ValueError, match="--camera-geo"):
-        Sbs1Sink("127.0.0.1:0", None)
+        Sbs1Sink(ANY_PORT, None)
     for bad in ("host:", "host:99999", "99999", "::30003", "x"):
         with pytest.raises(ValueError, match="HOST:PORT"):
-            parse_listen_address(bad)
-    assert parse_listen_address("[::1]:30003") == ("::1", 30003)
-    first = Sbs1Sink("127.0.0.1:0", GEO)
+            Sbs1Config(listen=bad)
+    assert Sbs1Config(listen="[::1]:30003").address() == ("::1", 30003)
+    with pytest.raises(ValueError, match=r"sbs1\.listen is not set"):
+        Sbs1Sink(Sbs1Config(), GEO)
+    first = Sbs1Sink(ANY_PORT, GEO)
     try:
         port = first.address[1]
         with pytest.raises(OSError, match=f"127.0.0.1:{port}"):
-            Sbs1Sink(f"127.0.0.1:{port}", GEO)
+            Sbs1Sink(Sbs1Config(listen=f"127.0.0.1:{port}"), GEO)
     finally:
         first.close()
 
 
 def test_listen_without_a_host_is_loopback_only():
-    assert parse_listen_address("30003") == parse_listen_address(":30003") == ("127.0.0.1", 30003)
+    port_only, colon_port = Sbs1Config(listen="30003"), Sbs1Config(listen=":30003")
+    assert port_only.address() == colon_port.address() == ("127.0.0.1", 30003)
     assert Sbs1Config(listen="30003").listen == Sbs1Config(listen=30003).listen == "127.0.0.1:30003"
     assert Sbs1Config(listen=":0").listen == "127.0.0.1:0"
     assert Sbs1Config(listen="0.0.0.0:30003").listen == "0.0.0.0:30003"  # the network: explicit
     with pytest.raises(ValueError, match="PORT"):
         Sbs1Config(listen="host:")
     for listen in ("0", ":0"):
-        sink = Sbs1Sink(listen, GEO)
+        sink = Sbs1Sink(Sbs1Config(listen=listen), GEO)
         try:
             assert sink.address[0] == "127.0.0.1"
             client = connect(sink)
@@ -175,7 +167,7 @@ def test_listen_without_a_host_is_loopback_only():
 def publish_for(sink: Sbs1Sink, seconds: float, until=lambda: False, readers=()) -> None:
     """Publish 20 tracks up to 200 times a second (some 800 kB/s) while ``readers`` read: a client
     that does not read fills its kernel buffers within a fraction of a second."""
-    tracks = [make_track(track_id=i, p=(i, 0.0, 50.0)) for i in range(20)]
+    tracks = [make_track(i, position_m=(i, 0.0, 50.0)) for i in range(20)]
     deadline = time.monotonic() + seconds
     while time.monotonic() < deadline and not until():
         sink.handle_update(update(*tracks))
@@ -189,7 +181,7 @@ def publish_for(sink: Sbs1Sink, seconds: float, until=lambda: False, readers=())
 
 
 def test_client_that_reads_nothing_times_out():
-    sink = Sbs1Sink("127.0.0.1:0", GEO, idle_timeout_s=1.0, max_pending_bytes=8 << 20)
+    sink = Sbs1Sink(Sbs1Config(listen="127.0.0.1:0", idle_timeout_s=1.0), GEO, max_pending_bytes=8 << 20)
     try:
         idle = connect(sink, rcvbuf=4096)  # connects and never reads
         reader = connect(sink)
@@ -211,7 +203,9 @@ def test_client_that_reads_nothing_times_out():
 
 
 def test_full_house_a_newcomer_replaces_a_client_that_reads_nothing():
-    sink = Sbs1Sink("127.0.0.1:0", GEO, max_clients=2, idle_timeout_s=60.0, max_pending_bytes=8 << 20)
+    sink = Sbs1Sink(
+        Sbs1Config(listen="127.0.0.1:0", idle_timeout_s=60.0), GEO, max_clients=2, max_pending_bytes=8 << 20
+    )
     try:
         squatters = [connect(sink, rcvbuf=4096) for _ in range(2)]
         early = socket.create_connection(sink.address[:2])  # no data yet: readers and squatters look alike
@@ -240,7 +234,7 @@ def test_full_house_a_newcomer_replaces_a_client_that_reads_nothing():
 
 
 def test_line_format_without_course():
-    hover = make_track(v=(0.0, 0.0, 0.0))
+    hover = make_track(velocity_mps=(0.0, 0.0, 0.0))
     when = dt.datetime(2025, 1, 2, 3, 4, 5, 678000, tzinfo=dt.UTC)
     lines = sbs1_lines(7, target_geodetic(hover, GEO), when, 0xF00000, with_callsign=False)
     assert [line[:5] for line in lines] == ["MSG,3", "MSG,4"]

@@ -34,8 +34,11 @@ from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 from test_zenoh_sink import frame, free_port, status, wait_for
 
 from dronekey.daemon.cli import build_parser, collect_overrides
-from dronekey.daemon.config import ConfigError, DaemonConfig, load_config
-from dronekey.daemon.sinks.zenoh_sink import ZenohSink, ZenohTls, describe_exposure, zenoh_config
+from dronekey.daemon.config.daemon_config import DaemonConfig
+from dronekey.daemon.config.errors import ConfigError
+from dronekey.daemon.config.loading import load_config
+from dronekey.daemon.config.zenoh import ZenohConfig, ZenohTlsConfig
+from dronekey.daemon.sinks.zenoh_sink import ZenohSink, describe_exposure, zenoh_config
 
 ROOT = paths.ROOT
 ROUTER_JSON5 = ROOT / "docs" / "zenoh-router.json5"
@@ -87,7 +90,7 @@ class CertificateAuthority:
         self.pem = folder / f"{cn.replace(' ', '-')}.pem"
         self.pem.write_bytes(self.cert.public_bytes(serialization.Encoding.PEM))
 
-    def issue(self, cn: str, prefix: str = "", server: bool = False) -> ZenohTls:
+    def issue(self, cn: str, prefix: str = "", server: bool = False) -> ZenohTlsConfig:
         """A certificate with common name ``cn`` (``server``: for 127.0.0.1 too) and its key."""
         key = ec.generate_private_key(ec.SECP256R1())
         now = datetime.datetime.now(datetime.UTC)
@@ -114,7 +117,7 @@ class CertificateAuthority:
             builder.sign(self.key, hashes.SHA256()).public_bytes(serialization.Encoding.PEM)
         )
         _write_key(key, key_path)
-        return ZenohTls(self.pem, cert_path, key_path)
+        return ZenohTlsConfig(root_ca=self.pem, certificate=cert_path, private_key=key_path)
 
 
 # ------------------------------------------------------------------------------------ the fleet
@@ -122,14 +125,14 @@ class CertificateAuthority:
 class Fleet:
     port: int
     ca: CertificateAuthority
-    identities: dict[str, ZenohTls]
+    identities: dict[str, ZenohTlsConfig]
 
     @property
     def endpoint(self) -> str:
         return f"tls/127.0.0.1:{self.port}"
 
 
-def router_config(fleet_ca: CertificateAuthority, router: ZenohTls, port: int) -> zenoh.Config:
+def router_config(fleet_ca: CertificateAuthority, router: ZenohTlsConfig, port: int) -> zenoh.Config:
     """docs/zenoh-router.json5 with its listener on 127.0.0.1 and its files in the test folder."""
     config = zenoh.Config.from_json5(ROUTER_JSON5.read_text(encoding="utf-8"))
     config.insert_json5("listen/endpoints", json.dumps([f"tls/127.0.0.1:{port}"]))
@@ -154,9 +157,9 @@ def fleet(tmp_path_factory):
         router.close()
 
 
-def client_session(fleet: Fleet, tls: ZenohTls) -> zenoh.Session:
+def client_session(fleet: Fleet, tls: ZenohTlsConfig) -> zenoh.Session:
     """A plain client session of the fleet (a reader, an intruder), TLS configured as the daemon does."""
-    return zenoh.open(zenoh_config("client", connect=[fleet.endpoint], tls=tls))
+    return zenoh.open(zenoh_config(ZenohConfig(mode="client", connect=[fleet.endpoint], tls=tls)))
 
 
 class Reader:
@@ -199,7 +202,7 @@ def test_a_sensor_identity_publishes_and_only_the_authorised_reader_reads(fleet)
     console = Reader(client_session(fleet, identity["dronekey-console"]))
     intruder = client_session(fleet, identity["intruder"])
     sink = ZenohSink(
-        "cam0", mode="client", connect=[fleet.endpoint], tls=identity["dronekey-cam0"],
+        ZenohConfig(mode="client", connect=[fleet.endpoint], tls=identity["dronekey-cam0"]), "cam0",
         info={"camera_id": "cam0", "version": "test"},
     )  # fmt: skip
     entities = []
@@ -241,8 +244,9 @@ def test_a_sensor_identity_publishes_and_only_the_authorised_reader_reads(fleet)
 
 def test_a_sensor_cannot_publish_under_another_camera_id(fleet):
     console = Reader(client_session(fleet, fleet.identities["dronekey-console"]))
-    wrong = ZenohSink("cam1", mode="client", connect=[fleet.endpoint], tls=fleet.identities["dronekey-cam0"])
-    right = ZenohSink("cam0", mode="client", connect=[fleet.endpoint], tls=fleet.identities["dronekey-cam0"])
+    sensor = ZenohConfig(mode="client", connect=[fleet.endpoint], tls=fleet.identities["dronekey-cam0"])
+    wrong = ZenohSink(sensor, "cam1")
+    right = ZenohSink(sensor, "cam0")
     try:
         assert wrong.wait_open(10) and right.wait_open(10)
         wait_for(lambda: right.health().get("subscribers"), 10, "the reader to be matched")
@@ -261,14 +265,15 @@ def test_a_sensor_cannot_publish_under_another_camera_id(fleet):
 @pytest.mark.parametrize("who", ["no certificate", "rogue dronekey-cam0", "plain tcp"])
 def test_a_peer_without_a_fleet_certificate_gets_no_link(fleet, who):
     if who == "plain tcp":
-        config = zenoh_config("client", connect=[f"tcp/127.0.0.1:{fleet.port}"], connect_timeout_s=1.0)
+        config = zenoh_config(
+            ZenohConfig(mode="client", connect=[f"tcp/127.0.0.1:{fleet.port}"]), connect_timeout_s=1.0
+        )
     elif who == "no certificate":
-        config = zenoh_config("client", connect=[fleet.endpoint], connect_timeout_s=1.0)
+        config = zenoh_config(ZenohConfig(mode="client", connect=[fleet.endpoint]), connect_timeout_s=1.0)
         config.insert_json5("transport/link/tls/root_ca_certificate", json.dumps(str(fleet.ca.pem)))
     else:  # a certificate with a sensor's name, signed by another CA
-        config = zenoh_config(
-            "client", connect=[fleet.endpoint], tls=fleet.identities[who], connect_timeout_s=1.0
-        )
+        rogue = ZenohConfig(mode="client", connect=[fleet.endpoint], tls=fleet.identities[who])
+        config = zenoh_config(rogue, connect_timeout_s=1.0)
     started = time.monotonic()
     with pytest.raises(zenoh.ZError, match="Unable to connect"):
         zenoh.open(config).close()
@@ -286,12 +291,11 @@ DEFAULT_SESSION = textwrap.dedent(
     """
     import json, logging, sys, time
     import psutil
-    from dronekey.daemon.config import DaemonConfig
+    from dronekey.daemon.config.daemon_config import DaemonConfig
     from dronekey.daemon.sinks.zenoh_sink import ZenohSink
 
     logging.basicConfig(level=logging.INFO, stream=sys.stderr, format="%(message)s")
-    z = DaemonConfig().zenoh
-    sink = ZenohSink("cam0", mode=z.mode, connect=z.connect, listen=z.listen, scouting=z.scouting)
+    sink = ZenohSink(DaemonConfig().zenoh, "cam0")
     assert sink.wait_open(10), sink.health()
     time.sleep(0.5)  # scouting, were it on, has opened its sockets by now
     sockets = [
@@ -309,11 +313,11 @@ def test_the_default_session_listens_on_loopback_only_and_does_not_scout():
     assert (z.mode, z.listen, z.scouting, z.tls) == ("peer", ["tcp/127.0.0.1:0"], False, None)
     assert DaemonConfig.model_validate({"zenoh": {"mode": "client"}}).zenoh.listen == []  # clients don't
 
-    config = zenoh_config(z.mode, z.connect, z.listen, z.scouting)
+    config = zenoh_config(z)
     for key in ("scouting/multicast/enabled", "scouting/gossip/enabled"):
         assert json.loads(config.get_json(key)) is False, key
     assert json.loads(config.get_json("listen/endpoints")) == ["tcp/127.0.0.1:0"]
-    assert json.loads(zenoh_config().get_json("listen/endpoints")) == ["tcp/127.0.0.1:0"]  # the sink's too
+    assert ZenohConfig().listen == ["tcp/127.0.0.1:0"]  # the section's own default, the one rule
 
     result = subprocess.run(
         [sys.executable, "-c", DEFAULT_SESSION], capture_output=True, text=True, timeout=60
@@ -329,16 +333,19 @@ def test_the_default_session_listens_on_loopback_only_and_does_not_scout():
     ) in result.stderr
 
 
-def test_what_opens_the_session_is_said_in_one_line():
-    tls = ZenohTls(Path(__file__), Path(__file__), Path(__file__))
+def test_what_opens_the_session_is_said_in_one_line(fleet):
+    tls = fleet.identities["dronekey-cam0"]
     line = describe_exposure(
-        "peer", ["tls/10.0.0.1:7447"], ["tcp/127.0.0.1:7447", "tls/0.0.0.0:7447"], True, tls
-    )
+        ZenohConfig(
+            connect=["tls/10.0.0.1:7447"], listen=["tcp/127.0.0.1:7447", "tls/0.0.0.0:7447"], scouting=True,
+            tls=tls,
+        )
+    )  # fmt: skip
     assert "REACHABLE FROM THE NETWORK: tls/0.0.0.0:7447" in line and "connects to tls/10.0.0.1:7447" in line
-    assert "scouting ON" in line and f"TLS with mutual authentication as {Path(__file__)}" in line
+    assert "scouting ON" in line and f"TLS with mutual authentication as {tls.certificate}" in line
     for endpoint in ("tcp/[::1]:7447", "tcp/localhost:7447", "unixsock-stream//run/z.sock"):
-        assert "this machine only" in describe_exposure("peer", listen=[endpoint])
-    assert "listens nowhere" in describe_exposure("client", ["tls/10.0.0.1:7447"])
+        assert "this machine only" in describe_exposure(ZenohConfig(listen=[endpoint]))
+    assert "listens nowhere" in describe_exposure(ZenohConfig(mode="client", connect=["tls/10.0.0.1:7447"]))
 
 
 def test_opening_flags_and_tls_config_errors(tmp_path):
@@ -365,5 +372,5 @@ def test_opening_flags_and_tls_config_errors(tmp_path):
     assert "zenoh.tls.private_key" in text and "must be a PEM private key" in text
     text = error({"root_ca": str(pem)})
     assert "zenoh.tls.certificate" in text and "zenoh.tls.private_key" in text
-    with pytest.raises(ValueError, match="zenoh tls root_ca"):
-        ZenohTls(tmp_path / "absent.pem", pem, key)
+    with pytest.raises(ValueError, match="root_ca"):
+        ZenohTlsConfig(root_ca=tmp_path / "absent.pem", certificate=pem, private_key=key)

@@ -18,13 +18,15 @@ import time
 
 import numpy as np
 import pytest
-from test_messages import schema_errors, strict_json
+import zenoh
+from factories import make_track
+from json_checks import schema_errors, strict_json
 
 from dronekey.daemon import messages
+from dronekey.daemon.config.zenoh import ZenohConfig
 from dronekey.daemon.sinks.base import FrameUpdate
 from dronekey.daemon.sinks.zenoh_sink import ZenohSink, zenoh_config
 from dronekey.geometry.camera import CameraModel
-from dronekey.types import Track, TrackStatus
 
 SUBSCRIBER = textwrap.dedent(
     """
@@ -118,14 +120,14 @@ def wait_for(predicate, timeout_s: float, what: str) -> None:
 def frame(i: int, n_tracks: int = 2) -> FrameUpdate:
     t_ns = 1_700_000_000_000_000_000 + i * 33_333_333
     tracks = tuple(
-        Track(
-            track_id=k + 1,
+        make_track(
+            k + 1,
             t_ns=t_ns,
-            status=TrackStatus.CONFIRMED,
-            position_m=np.array([1.0 * k, -2.0, 30.0 + i]),
-            velocity_mps=np.array([0.0, 0.0, 30.0]),
+            position_m=(1.0 * k, -2.0, 30.0 + i),
+            velocity_mps=(0.0, 0.0, 30.0),
             position_cov=np.eye(3) * 0.05,
-            quaternion_wxyz=np.array([1.0, 0.0, 0.0, 0.0]),
+            rotation_std_rad=(np.nan, np.nan, np.nan),
+            heading_confidence=float("nan"),
             keypoints_px=np.array([[100.0, 100.0], [120.0, 100.0], [120.0, 120.0], [100.0, 120.0]]),
             score=0.9,
             reprojection_px=float("nan"),  # no measurement error known: must arrive as null
@@ -143,7 +145,7 @@ def status(i: int) -> dict:
 def test_subscriber_in_another_process_gets_tracks_status_liveliness_and_info():
     port = free_port()
     info = messages.info_message("cam0", CameraModel.from_fov(1920, 1080, 70.0), model={"name": "test"})
-    sink = ZenohSink("cam0", listen=[f"tcp/127.0.0.1:{port}"], scouting=False, info=info)
+    sink = ZenohSink(ZenohConfig(listen=[f"tcp/127.0.0.1:{port}"]), "cam0", info=info)
     subscriber = Subscriber(port, "connect", want_tracks=40, want_status=3)
     try:
         assert sink.wait_open(10), sink.health()
@@ -182,7 +184,7 @@ def test_subscriber_in_another_process_gets_tracks_status_liveliness_and_info():
 
 def test_client_mode_without_router_neither_raises_nor_hangs():
     started = time.monotonic()
-    sink = ZenohSink("cam0", mode="client", connect=[f"tcp/127.0.0.1:{free_port()}"], scouting=False)
+    sink = ZenohSink(ZenohConfig(mode="client", connect=[f"tcp/127.0.0.1:{free_port()}"]), "cam0")
     constructed_s = time.monotonic() - started
     for i in range(5):
         sink.handle_update(frame(i))
@@ -205,7 +207,7 @@ def test_client_mode_without_router_neither_raises_nor_hangs():
 def test_client_connects_in_the_background_once_a_peer_listens():
     port = free_port()
     sink = ZenohSink(
-        "cam0", mode="client", connect=[f"tcp/127.0.0.1:{port}"], scouting=False, connect_timeout_s=0.5,
+        ZenohConfig(mode="client", connect=[f"tcp/127.0.0.1:{port}"]), "cam0", connect_timeout_s=0.5,
         retry_max_s=1.0,
     )  # fmt: skip
     subscriber = None
@@ -228,7 +230,7 @@ def test_client_connects_in_the_background_once_a_peer_listens():
 
 def test_config_keys_and_argument_errors():
     config = zenoh_config(
-        "client", connect=["tcp/10.0.0.1:7447"], listen=["udp/0.0.0.0:7448"], scouting=False
+        ZenohConfig(mode="client", connect=["tcp/10.0.0.1:7447"], listen=["udp/0.0.0.0:7448"], scouting=False)
     )
 
     def key(name):
@@ -240,11 +242,30 @@ def test_config_keys_and_argument_errors():
     assert key("scouting/multicast/enabled") is False
     assert key("connect/exit_on_failure") is False
     assert key("connect/timeout_ms") == 2000
+    with pytest.raises(ValueError, match="connect_timeout_s"):
+        zenoh_config(ZenohConfig(), connect_timeout_s=0)
     with pytest.raises(ValueError, match="mode"):
-        zenoh_config("router")
+        ZenohConfig(mode="router")
     with pytest.raises(ValueError, match="connect"):
-        zenoh_config(connect="tcp/10.0.0.1:7447")
+        ZenohConfig(connect="tcp/10.0.0.1:7447")
     with pytest.raises(ValueError, match="listen"):
-        zenoh_config(listen=["10.0.0.1:7447"])
+        ZenohConfig(listen=["10.0.0.1:7447"])
     with pytest.raises(ValueError, match="camera_id"):
-        ZenohSink("cam/0")
+        ZenohSink(ZenohConfig(), "cam/0")
+
+
+def test_endpoints_are_protocol_slash_address_as_zenoh_parses_them(tmp_path):
+    # Zenoh's link protocols, the hyphenated unixsock-stream among them, all pass the one rule ...
+    endpoints = [
+        "tcp/127.0.0.1:7447", "udp/0.0.0.0:7448", "tls/router.fleet.lan:7447", "quic/[::1]:7447",
+        "ws/127.0.0.1:7447", "unixsock-stream//run/dronekey.sock", "serial//dev/ttyUSB0#baudrate=115200",
+        "vsock/VMADDR_CID_LOCAL:7447",
+    ]  # fmt: skip
+    assert ZenohConfig(connect=endpoints, listen=endpoints).connect == endpoints
+    # ... and a session opens on a Unix socket, which the rule once refused.
+    config = ZenohConfig(listen=[f"unixsock-stream/{tmp_path / 'z.sock'}"])
+    session = zenoh.open(zenoh_config(config))
+    session.close()
+    for bad in ("127.0.0.1:7447", "TCP/127.0.0.1:7447", "tcp/", "/127.0.0.1:7447", "tcp/a b"):
+        with pytest.raises(ValueError, match="PROTOCOL/ADDRESS"):
+            ZenohConfig(connect=[bad])
