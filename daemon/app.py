@@ -9,6 +9,9 @@ went through the pipeline and ``WATCHDOG=1`` while the loop runs and no source c
 
 It returns the exit code (``errors.ExitCode``) after logging why it stopped; ``UsageError`` (bad
 calibration, model or video) propagates, with exit code 2, after every output was closed.
+
+One job, kept whole (about 400 lines): the run loop and its start, health and shutdown read best
+together; the parts it drives (sources, pipeline, outputs, status) live in their own modules.
 """
 
 from __future__ import annotations
