@@ -72,9 +72,11 @@ def load_schema(name: str) -> dict:
 
 
 def key_expressions(camera_id: str) -> dict[str, str]:
-    """The Zenoh key expressions of one camera (docs/design.md §6.1)."""
+    """The Zenoh key expressions of one camera (docs/design.md §6.1); ``live_tracks`` selects the
+    per-track keys ``dronekey/<camera_id>/tracks/<track_id>``."""
     base = f"dronekey/{check_camera_id(camera_id)}"
-    return {name: f"{base}/{name}" for name in ("tracks", "status", "alive", "info")}
+    keys = {name: f"{base}/{name}" for name in ("tracks", "status", "alive", "info")}
+    return {**keys, "live_tracks": f"{base}/tracks/*"}
 
 
 # --------------------------------------------------------------------------- JSON helpers

@@ -1,4 +1,5 @@
-"""The ``zenoh`` section: mode, endpoints, scouting and the TLS identity (docs/design.md §6.1).
+"""The ``zenoh`` section: mode, endpoints, scouting, the TLS identity, the history cache's depth and
+the live tracks' expiry (docs/design.md §6.1).
 
 An endpoint is ``PROTOCOL/ADDRESS`` as Zenoh parses it (everything before the first ``/`` is the
 protocol): ``tcp/``, ``udp/``, ``tls/``, ``quic/``, ``ws/``, ``unixsock-stream/``, ``unixpipe/``,
@@ -74,6 +75,19 @@ class ZenohConfig(Section):
         False, description="multicast and gossip scouting: makes the session discoverable on the network"
     )
     tls: ZenohTlsConfig | None = Field(None, description="TLS identity (mutual authentication); null: none")
+    history_depth: int = Field(
+        1,
+        ge=1,
+        le=1000,
+        description="samples the status key and each live track's key keep for subscribers that join "
+        "late (zenoh-ext advanced subscribers with history)",
+    )
+    track_expiry_s: float = Field(
+        5.0,
+        gt=0,
+        description="seconds without an update after which a track's key is deleted as if lost "
+        "(its lost message was dropped on the way, or the source stalled)",
+    )
 
     @field_validator("listen", mode="before")
     @classmethod

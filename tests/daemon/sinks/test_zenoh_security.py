@@ -222,7 +222,8 @@ def test_a_sensor_identity_publishes_and_only_the_authorised_reader_reads(fleet)
             sink.handle_status(status(i))
             entities[0].put(b'{"track_id": 666, "forged": true}')
             intruder.put("dronekey/cam0/status", b"forged")
-        wait_for(lambda: len(console.keys()) >= 15, 10, "the reader to get 10 tracks and 5 statuses")
+        # 10 track messages on the stream and 10 on the tracks' own keys, and 5 statuses.
+        wait_for(lambda: len(console.keys()) >= 25, 10, "the reader to get 20 tracks and 5 statuses")
         wait_for(lambda: console.alive, 10, "the sensor's liveliness token")
         time.sleep(0.5)  # anything that was going to slip through has had its chance
         console_info, intruder_info = console.info("cam0"), intruder_reader.info("cam0")
@@ -232,8 +233,12 @@ def test_a_sensor_identity_publishes_and_only_the_authorised_reader_reads(fleet)
         for session in (intruder, console, intruder_reader):
             session.close()
 
-    assert sorted(set(console.keys())) == ["dronekey/cam0/status", "dronekey/cam0/tracks"]
-    assert len(console.keys()) == 15 and not any("forged" in payload for _, payload in console.samples)
+    keys = console.keys()
+    assert sorted(set(keys)) == [
+        "dronekey/cam0/status", "dronekey/cam0/tracks", "dronekey/cam0/tracks/1", "dronekey/cam0/tracks/2",
+    ]  # fmt: skip
+    assert keys.count("dronekey/cam0/tracks") == 10 and keys.count("dronekey/cam0/status") == 5
+    assert not any("forged" in payload for _, payload in console.samples)
     assert console.alive == ["dronekey/cam0/alive"]  # not the intruder's dronekey/cam9/alive
     assert [json.loads(p)["version"] for p in console_info] == ["test"] and forged_info == []
     # The intruder read nothing: no samples, no liveliness, no info (its own puts stay local to
@@ -253,13 +258,15 @@ def test_a_sensor_cannot_publish_under_another_camera_id(fleet):
         for i in range(3):
             wrong.handle_update(frame(i))
             right.handle_update(frame(i))
-        wait_for(lambda: len(console.keys()) >= 6, 10, "cam0's tracks")
+        wait_for(lambda: len(console.keys()) >= 12, 10, "cam0's tracks, on the stream and their own keys")
         time.sleep(0.5)
     finally:
         wrong.close()
         right.close()
         console.close()
-    assert set(console.keys()) == {"dronekey/cam0/tracks"} and len(console.keys()) == 6
+    keys = console.keys()
+    assert set(keys) == {"dronekey/cam0/tracks", "dronekey/cam0/tracks/1", "dronekey/cam0/tracks/2"}
+    assert keys.count("dronekey/cam0/tracks") == 6
 
 
 @pytest.mark.parametrize("who", ["no certificate", "rogue dronekey-cam0", "plain tcp"])
