@@ -33,7 +33,7 @@ calibration: --calib FILE, else the sequence JSON (same stem) or camera.yaml bes
 
 defaults: Zenoh peer mode listening on 127.0.0.1 only, no scouting; MAVLink 2 to
   udpout:127.0.0.1:14550 as system 42 component 191, unsigned; MCAP into $STATE_DIRECTORY/mcap
-  under systemd, else ./mcap; no SBS-1. `--print-config` shows every setting.
+  under systemd, else ./mcap; no SBS-1; no CoT. `--print-config` shows every setting.
 
 {EXIT_CODE_HELP}
 
@@ -109,6 +109,16 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="[HOST:]PORT",
         help="serve SBS-1 (BaseStation) lines on 127.0.0.1:PORT, or on HOST; needs --camera-geo",
     )
+    g = p.add_argument_group("TAK Cursor-on-Target")
+    g.add_argument(
+        "--cot",
+        metavar="URL",
+        help="send tracks to TAK as CoT events: udp+multicast://239.2.3.1:6969 (ATAK/WinTAK multicast), "
+        "udp://HOST:PORT, tcp://HOST:PORT or tls://HOST:PORT (TAK Server); needs --camera-geo (default off)",
+    )
+    g.add_argument("--cot-cert", metavar="FILE", help="PEM client certificate for a tls:// TAK Server")
+    g.add_argument("--cot-key", metavar="FILE", help="PEM private key of --cot-cert")
+    g.add_argument("--cot-ca", metavar="FILE", help="PEM CA certificate that signed the TAK Server's")
     g = p.add_argument_group("MCAP log")
     mcap = g.add_mutually_exclusive_group()
     mcap.add_argument("--mcap-dir", metavar="DIR", help="folder of the MCAP files")
@@ -150,6 +160,10 @@ _FLAG_KEYS: dict[str, tuple[str, Any]] = {
     "mavlink_signing_key": ("mavlink.signing_key", None),
     "no_mavlink": ("mavlink.enabled", lambda v: not v),
     "sbs1_listen": ("sbs1.listen", None),
+    "cot": ("cot.url", None),
+    "cot_cert": ("cot.tls.certificate", None),
+    "cot_key": ("cot.tls.private_key", None),
+    "cot_ca": ("cot.tls.root_ca", None),
     "mcap_dir": ("mcap.dir", None),
     "no_mcap": ("mcap.enabled", lambda v: not v),
     "log_level": ("log.level", None),

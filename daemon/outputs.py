@@ -1,4 +1,4 @@
-"""Build the configured outputs (Zenoh, MAVLink, MCAP, SBS-1), each behind its own ``SinkWorker``.
+"""Build the configured outputs (Zenoh, MAVLink, MCAP, SBS-1, CoT), each behind its own ``SinkWorker``.
 
 Each sink module is imported only when its output is enabled, so a missing dependency or a broken
 output is reported by name (``zenoh output: ...``) instead of taking the others down at import. An
@@ -9,6 +9,7 @@ fix or disable it; running silently without a configured output would be worse.
 from __future__ import annotations
 
 import logging
+import math
 import threading
 import time
 from collections.abc import Callable, Mapping
@@ -70,6 +71,13 @@ def _sbs1(config: DaemonConfig, ctx: OutputContext) -> Sink:
     return Sbs1Sink(config.sbs1, config.camera.camera_geo())
 
 
+def _cot(config: DaemonConfig, ctx: OutputContext) -> Sink:
+    from dronekey.daemon.sinks.cot import CotSink
+
+    fov_deg = math.degrees(2.0 * math.atan2(ctx.camera.width / 2.0, float(ctx.camera.K[0, 0])))
+    return CotSink(config.cot, config.camera.id, config.camera.camera_geo(), fov_deg=fov_deg)
+
+
 # name -> (enabled?, builder, flag that disables it)
 _OUTPUTS: dict[
     str, tuple[Callable[[DaemonConfig], bool], Callable[[DaemonConfig, OutputContext], Sink], str]
@@ -78,6 +86,7 @@ _OUTPUTS: dict[
     "mavlink": (lambda c: c.mavlink.enabled, _mavlink, "--no-mavlink"),
     "mcap": (lambda c: c.mcap.enabled, _mcap, "--no-mcap"),
     "sbs1": (lambda c: c.sbs1.listen is not None, _sbs1, "no --sbs1-listen"),
+    "cot": (lambda c: c.cot.url is not None, _cot, "no --cot"),
 }
 
 

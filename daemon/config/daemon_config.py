@@ -7,6 +7,7 @@ from typing import Any, Literal
 from pydantic import Field, field_validator
 
 from dronekey.daemon.config.camera import CameraConfig
+from dronekey.daemon.config.cot import CotConfig
 from dronekey.daemon.config.mavlink import MavlinkConfig
 from dronekey.daemon.config.mcap import McapConfig
 from dronekey.daemon.config.model import ModelConfig
@@ -50,6 +51,7 @@ class DaemonConfig(Section):
     zenoh: ZenohConfig = Field(default_factory=ZenohConfig)
     mavlink: MavlinkConfig = Field(default_factory=MavlinkConfig)
     sbs1: Sbs1Config = Field(default_factory=Sbs1Config)
+    cot: CotConfig = Field(default_factory=CotConfig)
     mcap: McapConfig = Field(default_factory=McapConfig)
     sinks: SinksConfig = Field(default_factory=SinksConfig)
     log: LogConfig = Field(default_factory=LogConfig)

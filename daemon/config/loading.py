@@ -59,13 +59,18 @@ def load_config(path: Path | None, overrides: dict[str, tuple[Any, str]] | None 
     except ValidationError as exc:
         origin = {dotted: flag for dotted, (_value, flag) in overrides.items()}
         raise ConfigError(format_validation_error(exc, origin, path)) from None
-    if config.sbs1.listen is not None and config.camera.geo is None:
-        flag = overrides.get("sbs1.listen", (None, None))[1]
-        source = f" (from {flag})" if flag else ""
-        raise ConfigError(
-            f"config error: sbs1.listen = {short_repr(config.sbs1.listen)}{source}: the SBS-1 output needs "
-            "camera.geo (--camera-geo LAT,LON,ALT_M,YAW,PITCH,ROLL)"
-        )
+    # outputs whose messages are points on the Earth
+    for dotted, value, output in (
+        ("sbs1.listen", config.sbs1.listen, "SBS-1"),
+        ("cot.url", config.cot.url, "CoT"),
+    ):
+        if value is not None and config.camera.geo is None:
+            flag = overrides.get(dotted, (None, None))[1]
+            source = f" (from {flag})" if flag else ""
+            raise ConfigError(
+                f"config error: {dotted} = {short_repr(value)}{source}: the {output} output needs "
+                "camera.geo (--camera-geo LAT,LON,ALT_M,YAW,PITCH,ROLL)"
+            )
     if config.mcap.dir is None:
         config.mcap.dir = default_mcap_dir()
     return config
@@ -187,6 +192,9 @@ _PATH_KEYS = (
     "zenoh.tls.root_ca",
     "zenoh.tls.certificate",
     "zenoh.tls.private_key",
+    "cot.tls.root_ca",
+    "cot.tls.certificate",
+    "cot.tls.private_key",
 )
 
 
