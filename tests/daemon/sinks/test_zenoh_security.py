@@ -32,6 +32,7 @@ from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 from test_zenoh_sink import frame, free_port, status, wait_for
+from zenoh import ext
 
 from dronekey.daemon.cli import build_parser, collect_overrides
 from dronekey.daemon.config.daemon_config import DaemonConfig
@@ -267,6 +268,36 @@ def test_a_sensor_cannot_publish_under_another_camera_id(fleet):
     keys = console.keys()
     assert set(keys) == {"dronekey/cam0/tracks", "dronekey/cam0/tracks/1", "dronekey/cam0/tracks/2"}
     assert keys.count("dronekey/cam0/tracks") == 6
+
+
+def test_a_late_reader_gets_the_history_through_the_router_and_an_intruder_does_not(fleet):
+    sink = ZenohSink(
+        ZenohConfig(mode="client", connect=[fleet.endpoint], tls=fleet.identities["dronekey-cam0"]), "cam0"
+    )
+    sessions = []
+    try:
+        assert sink.wait_open(10), sink.health()
+        for i in range(3):
+            sink.handle_update(frame(i))  # tracks 1 and 2
+            sink.handle_status(status(i))
+        history = ext.HistoryConfig(detect_late_publishers=True, max_samples=1)
+        received: dict[str, list[str]] = {"dronekey-console": [], "intruder": []}
+        for who, keys in received.items():
+            session = client_session(fleet, fleet.identities[who])
+            sessions.append(session)
+            for key in ("dronekey/cam0/tracks/*", "dronekey/cam0/status"):
+                ext.declare_advanced_subscriber(
+                    session, key, lambda s, k=keys: k.append(str(s.key_expr)), history=history
+                )
+        wanted = {"dronekey/cam0/tracks/1", "dronekey/cam0/tracks/2", "dronekey/cam0/status"}
+        wait_for(lambda: set(received["dronekey-console"]) >= wanted, 10, "the history through the router")
+        time.sleep(0.5)
+    finally:
+        sink.close()
+        for session in sessions:
+            session.close()
+    # (and the deletes of the two live tracks on close)
+    assert set(received["dronekey-console"]) == wanted and received["intruder"] == []
 
 
 @pytest.mark.parametrize("who", ["no certificate", "rogue dronekey-cam0", "plain tcp"])
