@@ -109,6 +109,13 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="[HOST:]PORT",
         help="serve SBS-1 (BaseStation) lines on 127.0.0.1:PORT, or on HOST; needs --camera-geo",
     )
+    g = p.add_argument_group("SAPIENT (BSI Flex 335 v2.0)")
+    g.add_argument(
+        "--sapient",
+        metavar="[HOST:]PORT",
+        help="report tracks as a SAPIENT sensor node to the decision node or middleware at HOST:PORT "
+        "(127.0.0.1 given only a port); lat/lon with --camera-geo, else camera range-bearing (default off)",
+    )
     g = p.add_argument_group("TAK Cursor-on-Target")
     g.add_argument(
         "--cot",
@@ -160,6 +167,7 @@ _FLAG_KEYS: dict[str, tuple[str, Any]] = {
     "mavlink_signing_key": ("mavlink.signing_key", None),
     "no_mavlink": ("mavlink.enabled", lambda v: not v),
     "sbs1_listen": ("sbs1.listen", None),
+    "sapient": ("sapient.connect", None),
     "cot": ("cot.url", None),
     "cot_cert": ("cot.tls.certificate", None),
     "cot_key": ("cot.tls.private_key", None),

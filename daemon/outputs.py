@@ -78,6 +78,12 @@ def _cot(config: DaemonConfig, ctx: OutputContext) -> Sink:
     return CotSink(config.cot, config.camera.id, config.camera.camera_geo(), fov_deg=fov_deg)
 
 
+def _sapient(config: DaemonConfig, ctx: OutputContext) -> Sink:
+    from dronekey.daemon.sinks.sapient.sink import SapientSink
+
+    return SapientSink(config.sapient, ctx.camera, config.camera.id, config.camera.camera_geo())
+
+
 # name -> (enabled?, builder, flag that disables it)
 _OUTPUTS: dict[
     str, tuple[Callable[[DaemonConfig], bool], Callable[[DaemonConfig, OutputContext], Sink], str]
@@ -86,6 +92,7 @@ _OUTPUTS: dict[
     "mavlink": (lambda c: c.mavlink.enabled, _mavlink, "--no-mavlink"),
     "mcap": (lambda c: c.mcap.enabled, _mcap, "--no-mcap"),
     "sbs1": (lambda c: c.sbs1.listen is not None, _sbs1, "no --sbs1-listen"),
+    "sapient": (lambda c: c.sapient.connect is not None, _sapient, "no --sapient"),
     "cot": (lambda c: c.cot.url is not None, _cot, "no --cot"),
 }
 

@@ -11,6 +11,7 @@ from dronekey.daemon.config.cot import CotConfig
 from dronekey.daemon.config.mavlink import MavlinkConfig
 from dronekey.daemon.config.mcap import McapConfig
 from dronekey.daemon.config.model import ModelConfig
+from dronekey.daemon.config.sapient import SapientConfig
 from dronekey.daemon.config.sbs1 import Sbs1Config
 from dronekey.daemon.config.section import Seconds, Section
 from dronekey.daemon.config.source import SourceConfig
@@ -51,6 +52,7 @@ class DaemonConfig(Section):
     zenoh: ZenohConfig = Field(default_factory=ZenohConfig)
     mavlink: MavlinkConfig = Field(default_factory=MavlinkConfig)
     sbs1: Sbs1Config = Field(default_factory=Sbs1Config)
+    sapient: SapientConfig = Field(default_factory=SapientConfig)
     cot: CotConfig = Field(default_factory=CotConfig)
     mcap: McapConfig = Field(default_factory=McapConfig)
     sinks: SinksConfig = Field(default_factory=SinksConfig)
