@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import socket
 import struct
+import subprocess
+import sys
 import threading
 import time
 
@@ -378,3 +380,16 @@ def test_refused_registration_is_retried_and_reported(sink_for):
         node.wait_for("registration", 2)  # registers again after the backoff
     finally:
         node.close()
+
+
+def test_the_daemon_reports_a_simulated_drone_to_the_node(node):
+    """``dronekey-daemon --sapient PORT`` end to end: a rendered sequence, the real pipeline, this node."""
+    command = [sys.executable, "-m", "dronekey.daemon.cli", "--source", "sim://seq13", "--max-frames", "30"]
+    command += ["--sapient", str(node.port), "--no-zenoh", "--no-mavlink", "--no-mcap"]
+    result = subprocess.run(command, capture_output=True, text=True, timeout=240)
+    assert result.returncode == 0, result.stderr[-2000:]
+    reports = node.wait_for("detection_report", 10)
+    assert {r.object_id for r in reports} == {reports[0].object_id}  # one drone, one object
+    assert all(r.range_bearing.range > 0 and r.classification[0].confidence > 0.5 for r in reports)
+    assert len(node.wait_for("alert")) == 1
+    assert node.wait_for("status_report")[-1].system == StatusReport.SYSTEM_GOODBYE
