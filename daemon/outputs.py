@@ -56,7 +56,14 @@ def _zenoh(config: DaemonConfig, ctx: OutputContext) -> Sink:
 def _mavlink(config: DaemonConfig, ctx: OutputContext) -> Sink:
     from dronekey.daemon.sinks.mavlink import MavlinkSink
 
-    return MavlinkSink(config.mavlink, config.camera.camera_geo(), simulated=ctx.simulated)
+    return MavlinkSink(
+        config.mavlink,
+        config.camera.camera_geo(),
+        simulated=ctx.simulated,
+        camera_id=config.camera.id,
+        camera=ctx.camera,
+        model_info=ctx.model_info,
+    )
 
 
 def _mcap(config: DaemonConfig, ctx: OutputContext) -> Sink:

@@ -34,11 +34,12 @@ __all__ = [
 ]
 
 
-# 24-bit addresses from 0xF00000: the top of the address space, which ICAO keeps for itself rather
-# than allocating to states (Annex 10 Vol. III), so a track is unlikely to take a registered
-# aircraft's address. Configurable; track ids wrap every 65536.
-DEFAULT_ICAO_BASE = 0xF00000
-_ICAO_BLOCK = 0x10000
+# 24-bit addresses 0x000001..0x003FFF: below the first block ICAO allocates to a state (0x004000),
+# so a track does not take a registered aircraft's address (0x000000 is never valid), and the block
+# that MAVProxy's adsb module draws as a drone (it draws 0xA00000 and above, 0xF00000 included, as a
+# plane). Track ids 1..16383 keep their number (track 7 is 0x000007); ids wrap every 16383.
+DEFAULT_ICAO_BASE = 0x000000
+_ICAO_BLOCK = 0x4000
 
 # Below this ground speed the direction of motion is noise: no course is reported.
 MIN_COURSE_SPEED_MPS = 0.5
@@ -100,9 +101,9 @@ def unix_time_us(t_ns: int) -> int:
 
 
 def validate_icao_base(base: int) -> int:
-    """Check that ``base`` starts a block of 65536 24-bit addresses; return it."""
+    """Check that ``base`` starts a block of 16384 24-bit addresses; return it."""
     if not isinstance(base, int) or not 0 <= base < 1 << 24 or base % _ICAO_BLOCK:
-        raise ValueError(f"icao_base must be a multiple of 0x10000 below 0x1000000, got {base!r}")
+        raise ValueError(f"icao_base must be a multiple of 0x4000 below 0x1000000, got {base!r}")
     return base
 
 
@@ -117,8 +118,9 @@ def validate_statuses(statuses: Iterable[TrackStatus | str]) -> frozenset[TrackS
 
 
 def icao_address(track_id: int, base: int = DEFAULT_ICAO_BASE) -> int:
-    """The 24-bit address of a track: ``base`` plus the track id modulo 65536."""
-    return base | (int(track_id) % _ICAO_BLOCK)
+    """The 24-bit address of a track: ``base`` + 1..16383 (track ids 1..16383 as they are, then wrapping),
+    never ``base`` itself (0x000000 is no valid address)."""
+    return base + 1 + (int(track_id) - 1) % (_ICAO_BLOCK - 1)
 
 
 def callsign(track_id: int) -> str:

@@ -1,6 +1,8 @@
-"""Answers to what a ground station asks of our component: PING, REQUEST_MESSAGE, message intervals.
+"""Answers to what a ground station asks of our component: PING, commands, parameters, FTP.
 
-Handled (as COMMAND_LONG or COMMAND_INT, each answered with COMMAND_ACK before any message):
+Parameter requests go to ``parameters.ParameterServer`` and FILE_TRANSFER_PROTOCOL to ``ftp``
+(a NAK). Commands handled (as COMMAND_LONG or COMMAND_INT, each answered with COMMAND_ACK before
+any message):
 
 - ``MAV_CMD_SET_MESSAGE_INTERVAL`` for the streams of ``StreamRates`` (param1 message id, param2
   interval in µs, -1 stop, 0 default): ACCEPTED, or DENIED for another message id or a bad interval.
@@ -8,8 +10,10 @@ Handled (as COMMAND_LONG or COMMAND_INT, each answered with COMMAND_ACK before a
   (param2 = the message id asked about) is answered here. DENIED when the message is not
   available from us, TEMPORARILY_REJECTED when it is but has nothing to say right now.
 - ``MAV_CMD_GET_MESSAGE_INTERVAL`` (deprecated, still sent by ground stations): as above.
-- other commands: UNSUPPORTED when addressed to our component id, ignored when broadcast
-  (the component they are meant for answers them).
+- ``MAV_CMD_GET_HOME_POSITION`` (deprecated, still sent): as REQUEST_MESSAGE(HOME_POSITION).
+- other commands: UNSUPPORTED when aimed at us, that is at our system (any component: ground
+  stations send to component 0 and wait for an ACK) or at our component; ignored when broadcast to
+  every system and component (the component they are meant for answers them).
 
 A command is ours when its target system is ours or 0 (broadcast) and its target component is
 ours or 0; anything else, and anything we sent ourselves, is ignored. A PING with target 0/0 is a
@@ -24,6 +28,8 @@ import logging
 import math
 from collections.abc import Callable
 
+from .ftp import ftp_reply
+from .parameters import ParameterServer
 from .streams import StreamRates
 
 __all__ = ["CommandHandler"]
@@ -31,6 +37,7 @@ __all__ = ["CommandHandler"]
 log = logging.getLogger(__name__)
 
 MESSAGE_INTERVAL_ID = 244
+HOME_POSITION_ID = 242
 
 
 class CommandHandler:
@@ -45,6 +52,7 @@ class CommandHandler:
         when we do not produce that message.
     default_interval_us : ``f(message_id) -> int``, the interval reported by MESSAGE_INTERVAL for a
         stream at its default rate (the measured update interval; 0 when unknown).
+    parameters : the read-only parameters served (None: parameter requests are not answered).
     """
 
     def __init__(
@@ -55,6 +63,7 @@ class CommandHandler:
         rates: StreamRates,
         request_message: Callable[[int], list | None],
         default_interval_us: Callable[[int], int],
+        parameters: ParameterServer | None = None,
     ) -> None:
         self._d = dialect
         self._sysid = sysid
@@ -62,6 +71,7 @@ class CommandHandler:
         self._rates = rates
         self._request_message = request_message
         self._default_interval_us = default_interval_us
+        self._parameters = parameters
 
     def handle(self, msg) -> list:
         """Replies to ``msg`` (a decoded message of the dialect), in sending order."""
@@ -71,6 +81,13 @@ class CommandHandler:
         kind = msg.get_type()
         if kind == "PING":
             return self._ping(msg, src)
+        if kind == "FILE_TRANSFER_PROTOCOL":
+            reply = ftp_reply(self._d, msg, self._sysid, self._compid)
+            return [] if reply is None else [reply]
+        if self._parameters is not None:
+            replies = self._parameters.handle(msg)
+            if replies is not None:
+                return replies
         if kind == "COMMAND_LONG":
             params = (msg.param1, msg.param2, msg.param3, msg.param4, msg.param5, msg.param6, msg.param7)
         elif kind == "COMMAND_INT":
@@ -79,7 +96,8 @@ class CommandHandler:
             return []
         if msg.target_system not in (0, self._sysid) or msg.target_component not in (0, self._compid):
             return []
-        return self._command(msg.command, params, src, direct=msg.target_component == self._compid)
+        direct = msg.target_system == self._sysid or msg.target_component == self._compid
+        return self._command(msg.command, params, src, direct=direct)
 
     def _ping(self, msg, src: tuple[int, int]) -> list:
         if msg.target_system != 0 or msg.target_component != 0:
@@ -95,8 +113,8 @@ class CommandHandler:
             return [self._ack(command, self._set_interval(params, src), src)]
         if command == d.MAV_CMD_GET_MESSAGE_INTERVAL:
             return self._message_interval_reply(command, params[0], src)
-        if command == d.MAV_CMD_REQUEST_MESSAGE:
-            message_id = _as_int(params[0])
+        if command in (d.MAV_CMD_REQUEST_MESSAGE, d.MAV_CMD_GET_HOME_POSITION):
+            message_id = HOME_POSITION_ID if command == d.MAV_CMD_GET_HOME_POSITION else _as_int(params[0])
             if message_id == MESSAGE_INTERVAL_ID:
                 return self._message_interval_reply(command, params[1], src)
             replies = None if message_id is None else self._request_message(message_id)

@@ -35,7 +35,7 @@ import threading
 from pathlib import Path
 from types import ModuleType
 
-__all__ = ["DialectError", "cache_directory", "dialect_xml", "load_dialect"]
+__all__ = ["DialectError", "cache_directory", "dialect_xml", "load_dialect", "write_message_definitions"]
 
 log = logging.getLogger(__name__)
 
@@ -71,6 +71,24 @@ def _input_digest(our_xml: bytes, wheel_dir: Path) -> str:
     for name in _INCLUDED_XML:
         h.update(b"\0" + (wheel_dir / name).read_bytes())
     return h.hexdigest()
+
+
+def write_message_definitions(folder: str | os.PathLike) -> str:
+    """Lay out the dialect for tools that generate it themselves (MAVProxy, ``mavutil.set_dialect``):
+    ``<folder>/v1.0/<name>.xml`` with the XML files it includes, where pymavlink looks when the
+    ``MDEF`` environment variable is ``folder``. Returns ``name`` (``dronekey_`` and a hash of the
+    inputs), the ``--dialect`` to give: a new name for new XML, so pymavlink, which writes the module
+    it generates into its own ``dialects/v20`` folder and reuses it from then on, never uses a stale one.
+    """
+    wheel_dir = _wheel_xml_dir()
+    our_xml = dialect_xml()
+    name = "dronekey_" + _input_digest(our_xml, wheel_dir)[:12]
+    target = Path(folder) / "v1.0"
+    target.mkdir(parents=True, exist_ok=True)
+    (target / f"{name}.xml").write_bytes(our_xml)
+    for included in _INCLUDED_XML:
+        shutil.copyfile(wheel_dir / included, target / included)
+    return name
 
 
 def _writable_dir(path: Path) -> bool:

@@ -301,8 +301,13 @@ def encode_version(version: str) -> int:
 
 
 def autopilot_version(dialect, version: str, uid: int = 0):
-    """AUTOPILOT_VERSION, our identity: MAVLink 2 and COMMAND_INT capable, DroneKey's version."""
-    caps = dialect.MAV_PROTOCOL_CAPABILITY_MAVLINK2 | dialect.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
+    """AUTOPILOT_VERSION, our identity: MAVLink 2 and COMMAND_INT capable, parameters as C casts
+    (``parameters``), no MAVLink FTP (so ground stations need not try it), DroneKey's version."""
+    caps = (
+        dialect.MAV_PROTOCOL_CAPABILITY_MAVLINK2
+        | dialect.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
+        | dialect.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST
+    )
     zeros8 = [0] * 8
     return dialect.MAVLink_autopilot_version_message(
         caps, encode_version(version), 0, 0, 0, zeros8, zeros8, zeros8, 0, 0, uid & 0xFFFFFFFFFFFFFFFF

@@ -90,6 +90,14 @@ class PeerPolicy:
         self._pinned: tuple[str, int | None] | None = None
         self._lock = threading.Lock()
 
+    @classmethod
+    def for_url(cls, url: str, allow: Iterable[str] = ()) -> PeerPolicy:
+        """The policy of a link: links that name no peer pin the first one heard; ``tcpin`` by host
+        only, as a reconnecting client comes from a new port."""
+        scheme = url.partition(":")[0]
+        pin_first = scheme in ("udpin", "udp", "udpbcast", "tcpin")
+        return cls(allow, pin_first=pin_first, pin_port=scheme != "tcpin")
+
     @property
     def allow(self) -> tuple[str, ...]:
         return tuple(e.text for e in self._entries)

@@ -6,7 +6,10 @@ What goes out, all MAVLink 2 from our own system/component ids:
 - TARGET_RELATIVE (511) per track update, in the sensor's FRD frame (``messages`` module);
 - TARGET_ABSOLUTE (510) and ADSB_VEHICLE (246) per track update when the camera's geodetic pose
   is configured;
-- replies to PING, MAV_CMD_REQUEST_MESSAGE and MAV_CMD_SET_MESSAGE_INTERVAL (``commands`` module).
+- GLOBAL_POSITION_INT (the sensor's own position) with the heartbeat, when the camera's geodetic
+  pose is configured (``own_position``);
+- replies to PING, commands (COMMAND_ACK for each one aimed at us), parameter requests (a few
+  read-only parameters, ``parameters``) and MAVLink FTP (a NAK, ``ftp``): ``commands`` module.
 
 What comes in is read only from admitted peers, and with signing on only when correctly signed and
 newer than its stream's last message, which survives restarts (``connection``). Everything refused
@@ -21,13 +24,13 @@ and counted.
 
 from __future__ import annotations
 
-import importlib.metadata
 import logging
 import os
 import threading
 import time
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 
+import dronekey
 from dronekey.daemon.config.mavlink import MavlinkConfig
 from dronekey.daemon.geo import CameraGeo
 from dronekey.daemon.sinks.base import FrameUpdate, Sink
@@ -38,12 +41,16 @@ from dronekey.daemon.sinks.target_state import (
     validate_icao_base,
     validate_statuses,
 )
+from dronekey.geometry.camera import CameraModel
 from dronekey.types import Track, TrackStatus
 
 from . import messages
 from .commands import CommandHandler
 from .connection import Connection
 from .dialect import load_dialect
+from .latest import LatestTrackMessages
+from .own_position import global_position_int, home_position
+from .parameters import ParameterServer, sensor_parameters
 from .peers import PeerPolicy
 from .refusals import Refusals
 from .signing import SAVE_INTERVAL_S
@@ -56,14 +63,6 @@ log = logging.getLogger(__name__)
 
 _TICK_S = 0.1
 _RECV_POLL_S = 0.2
-_TRACK_STALE_S = 5.0
-
-
-def _package_version() -> str:
-    try:
-        return importlib.metadata.version("dronekey")
-    except importlib.metadata.PackageNotFoundError:
-        return "0.0.0"
 
 
 class MavlinkSink(Sink):
@@ -90,6 +89,8 @@ class MavlinkSink(Sink):
         evicted first; their state file is ``mavlink-signing-<sysid>-<compid>.streams`` beside the
         signing timestamp.
     refusal_log_period_s : at most one log line about refused input per this many seconds.
+    camera_id, camera, model_info : what the read-only parameters describe (``parameters``): the
+        camera id, its intrinsics and the keypoint model (``sha256``); each may be None.
 
     Health: the daemon calls ``set_healthy(bool)`` when the pipeline's state changes, or puts
     ``"healthy": bool`` in the status dict it gives ``handle_status``; frame updates also count as
@@ -114,6 +115,9 @@ class MavlinkSink(Sink):
         dialect_cache_dir: str | os.PathLike | None = None,
         max_signed_streams: int = DEFAULT_MAX_STREAMS,
         refusal_log_period_s: float = 60.0,
+        camera_id: str | None = None,
+        camera: CameraModel | None = None,
+        model_info: Mapping | None = None,
     ) -> None:
         if camera_geo is not None and not isinstance(camera_geo, CameraGeo):
             raise TypeError(f"camera_geo must be a CameraGeo or None, got {type(camera_geo).__name__}")
@@ -136,42 +140,42 @@ class MavlinkSink(Sink):
         self._d = load_dialect(dialect_cache_dir)
         self._mav_type = self._d.MAV_TYPE_ONBOARD_CONTROLLER if mav_type is None else int(mav_type)
         self._q_sensor = messages.sensor_quaternion(camera_geo)
-        self._version = _package_version()
+        self._version = dronekey.__version__
         per_track = [messages.TARGET_RELATIVE]
         if camera_geo is not None:
             per_track += [messages.TARGET_ABSOLUTE, messages.ADSB_VEHICLE]
         self._rates = StreamRates(per_track)
+        params = sensor_parameters(sysid, compid, self._version, camera_id, camera, model_info, camera_geo)
         self._handler = CommandHandler(
-            self._d, sysid, compid, self._rates, self._request_message, self._default_interval_us
-        )
-        # Links that name no peer pin the first one heard; tcpin by host, as a reconnecting client
-        # comes from a new port.
-        scheme = config.url.partition(":")[0]
-        peers = PeerPolicy(
-            config.allow,
-            pin_first=scheme in ("udpin", "udp", "udpbcast", "tcpin"),
-            pin_port=scheme != "tcpin",
+            self._d,
+            sysid,
+            compid,
+            self._rates,
+            self._request_message,
+            self._default_interval_us,
+            ParameterServer(self._d, sysid, compid, params),
         )
         self._link = Connection(
             config.url,
             self._d,
             sysid,
             compid,
-            peers=peers,
+            peers=PeerPolicy.for_url(config.url, config.allow),
             refusals=self._refusals,
             signing_key_file=config.signing_key,
             signing_state_dir=signing_state_dir,
             max_signed_streams=max_signed_streams,
         )
 
-        self._state_lock = threading.Lock()  # health, latest messages, counters
+        self._state_lock = threading.Lock()  # health, counters
         self._healthy = True
         self._last_alive_ns: int | None = None
-        self._latest: dict[int, tuple[int, dict[int, object]]] = {}
+        self._latest = LatestTrackMessages()
         self._last_update_ns: int | None = None
         self._update_interval_us = 0.0
         self._commands = 0
 
+        self._started_ns = time.monotonic_ns()
         self._stop = threading.Event()
         self._link.open_if_due()
         self._threads = [
@@ -236,7 +240,8 @@ class MavlinkSink(Sink):
                 self._forget(track.track_id)
             elif track.status in self._statuses:
                 self._publish_track(track, now)
-        self._evict_stale(now)
+        for track_id in self._latest.evict_stale(now):
+            self._rates.forget(track_id)
 
     def health(self) -> dict:
         """Link state and counters for the daemon's status message."""
@@ -302,23 +307,14 @@ class MavlinkSink(Sink):
         except (ValueError, FloatingPointError) as exc:
             log.debug("track %s not published: %s", track.track_id, exc)
             return
-        with self._state_lock:
-            self._latest[track.track_id] = (now_ns, dict(out))
+        self._latest.put(track.track_id, now_ns, dict(out))
         for msg_id, msg in out:
             if self._rates.should_send(msg_id, track.track_id, now_ns):
                 self._link.send(msg)
 
     def _forget(self, track_id: int) -> None:
-        with self._state_lock:
-            self._latest.pop(track_id, None)
+        self._latest.forget(track_id)
         self._rates.forget(track_id)
-
-    def _evict_stale(self, now_ns: int) -> None:
-        limit = now_ns - int(_TRACK_STALE_S * 1e9)
-        with self._state_lock:
-            stale = [tid for tid, (t, _) in self._latest.items() if t < limit]
-        for tid in stale:
-            self._forget(tid)
 
     def _request_message(self, message_id: int) -> list | None:
         """Messages for MAV_CMD_REQUEST_MESSAGE: None if we never send ``message_id``."""
@@ -330,10 +326,20 @@ class MavlinkSink(Sink):
         if message_id == 300 and hasattr(d, "MAVLink_protocol_version_message"):
             # PROTOCOL_VERSION: only in pymavlink wheels older than its 2025 removal from common.xml.
             return [d.MAVLink_protocol_version_message(200, 200, 200, [0] * 8, [0] * 8)]
+        if message_id in (d.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, d.MAVLINK_MSG_ID_HOME_POSITION):
+            return self._own_position(message_id)
         if self._rates.supports(message_id):
-            with self._state_lock:
-                return [m[message_id] for _, m in self._latest.values() if message_id in m]
+            return self._latest.of(message_id)
         return None
+
+    def _own_position(self, message_id: int) -> list | None:
+        """GLOBAL_POSITION_INT or HOME_POSITION of the sensor; None without ``--camera-geo``."""
+        if self._geo is None:
+            return None
+        if message_id == self._d.MAVLINK_MSG_ID_HOME_POSITION:
+            return [home_position(self._d, self._geo)]
+        uptime_ms = (time.monotonic_ns() - self._started_ns) // 1_000_000
+        return [global_position_int(self._d, self._geo, uptime_ms)]
 
     def _default_interval_us(self, message_id: int) -> int:
         with self._state_lock:
@@ -350,6 +356,8 @@ class MavlinkSink(Sink):
                 self._link.open_if_due()
                 if now >= next_heartbeat and self.is_healthy():
                     self._link.send(messages.heartbeat(self._d, self._mav_type))
+                    for position in self._own_position(self._d.MAVLINK_MSG_ID_GLOBAL_POSITION_INT) or ():
+                        self._link.send(position)
                     next_heartbeat = now + self._heartbeat_period_s
                 # A command's stream timestamp is on disk within a tick, so a capture of it is a
                 # replay after a restart; other signed messages change nothing and wait for the rest.

@@ -149,7 +149,7 @@ def test_geodetic_messages_with_camera_geo(make_sink, gcs):
     assert (absolute.lat, absolute.lon) == (round(lat * 1e7), round(lon * 1e7))
     assert absolute.alt == pytest.approx(alt, abs=1e-3)
     assert (adsb.lat, adsb.lon, adsb.altitude) == (round(lat * 1e7), round(lon * 1e7), round(alt * 1000))
-    assert adsb.emitter_type == 14 and adsb.callsign == "DK000007" and adsb.ICAO_address == 0xF00007
+    assert adsb.emitter_type == 14 and adsb.callsign == "DK000007" and adsb.ICAO_address == 0x000007
 
 
 def test_heartbeat_only_while_healthy(make_sink, gcs):

@@ -239,7 +239,10 @@ def test_adsb_hovering_track_has_no_heading(dialect):
 
 
 def test_ids_versions_and_time():
-    assert icao_address(65536 + 5) == 0xF00005
+    # 0x000001..0x003FFF: unallocated by ICAO, drawn as drones by MAVProxy; never 0x000000.
+    assert icao_address(7) == 0x000007 and icao_address(16383) == 0x003FFF
+    assert icao_address(16383 + 5) == 0x000005 and icao_address(0) == 0x003FFF
+    assert icao_address(7, 0xF00000) == 0xF00007
     assert callsign(42) == "DK000042" and len(callsign(123456789)) == 8
     with pytest.raises(ValueError, match="icao_base"):
         validate_icao_base(0xF00001)

@@ -65,8 +65,8 @@ def test_clients_receive_position_lines(sink):
         fields = [line.split(",") for line in lines]
         assert all(len(f) == 22 for f in fields)
         ident, position, velocity = fields
-        assert ident[4] == "F00007" and ident[10] == "DK000007"
-        assert position[4] == "F00007"
+        assert ident[4] == "000007" and ident[10] == "DK000007"
+        assert position[4] == "000007"
         assert float(position[14]) == pytest.approx(lat, abs=1e-6)
         assert float(position[15]) == pytest.approx(lon, abs=1e-6)
         assert int(position[11]) == round(alt / 0.3048)  # feet, an integer as QGroundControl parses it
