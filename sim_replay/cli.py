@@ -27,7 +27,8 @@ from dronekey.sim_replay.drone_look import LED_MODES
 from dronekey.sim_replay.flight import FLIGHT_MODELS
 from dronekey.sim_replay.io.coco_pose import ROTATION_ENCODINGS, TRANSLATION_UNITS, CocoPoseEncoding
 from dronekey.sim_replay.io.frames import FrameSourceError, iter_frames
-from dronekey.sim_replay.io.render_output import write_sequence
+from dronekey.sim_replay.io.h264_video import default_bitrate_bps
+from dronekey.sim_replay.io.render_output import VIDEO_CODECS, write_sequence
 from dronekey.sim_replay.io.sequence_reader import load_sequence
 from dronekey.sim_replay.io.validation import SequenceFormatError
 from dronekey.sim_replay.presets import PRESETS
@@ -80,6 +81,19 @@ def _positive_float(text: str) -> float:
     if not 0 < value < float("inf"):
         raise argparse.ArgumentTypeError(f"must be a positive number, got {text!r}")
     return value
+
+
+def _bitrate(text: str) -> int:
+    """A bitrate in bit/s: ``8000000``, ``8M``, ``800k`` (SI prefixes, as FFmpeg writes them)."""
+    scale = {"k": 1e3, "m": 1e6}.get(text[-1:].lower(), 1.0)
+    number = text[:-1] if scale != 1.0 else text
+    try:
+        value = float(number) * scale
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a bitrate such as 8M or 800k, got {text!r}") from None
+    if not 10_000 <= value <= 1e9:
+        raise argparse.ArgumentTypeError(f"must be between 10k and 1000M bit/s, got {text!r}")
+    return round(value)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -139,6 +153,20 @@ def build_parser() -> argparse.ArgumentParser:
     )
     render.add_argument(
         "--images", action="store_true", help="write OUT/<preset>/NNNNNN.png instead of a video"
+    )
+    render.add_argument(
+        "--codec",
+        choices=VIDEO_CODECS,
+        help="video codec: h264 (default: libx264 through PyAV, yuv420p, a keyframe every 2 s, as a "
+        "camera sends) or mp4v (OpenCV's writer: MPEG-4 Part 2, or H.264 where that OpenCV build "
+        "encodes it)",
+    )
+    render.add_argument(
+        "--bitrate",
+        metavar="RATE",
+        type=_bitrate,
+        help="H.264 target bitrate in bit/s, e.g. 8M or 800k (default: 8M at 1920x1080 30 fps, scaled "
+        "by width x height x fps: camera-like; 20M makes a heavy recording)",
     )
 
     conditions = parser.add_argument_group("conditions (--preset)")
@@ -225,6 +253,18 @@ def _check_output_folder(out: Path) -> None:
         raise UsageError(f"output folder {out} is not writable ({exc.strerror or exc})") from None
 
 
+def _video_codec(args: argparse.Namespace, width: int, height: int) -> str:
+    """The codec to write (``--codec``, h264 by default), after checking it fits the other flags."""
+    if args.images and (args.bitrate is not None or args.codec is not None):
+        raise UsageError("--codec and --bitrate set the video; --images writes PNG frames instead")
+    codec = args.codec or "h264"
+    if codec == "mp4v" and args.bitrate is not None:
+        raise UsageError("--bitrate applies to --codec h264 (OpenCV's mp4v writer has no bitrate setting)")
+    if not args.images and codec == "h264" and (width % 2 or height % 2):
+        raise UsageError(f"--codec h264 needs an even --width and --height (yuv420p), got {width}x{height}")
+    return codec
+
+
 def _size(args: argparse.Namespace) -> tuple[int, int]:
     if (args.width is None) != (args.height is None):
         given = "--width" if args.width is not None else "--height"
@@ -254,6 +294,7 @@ def _render(args: argparse.Namespace) -> int:
     if args.out is None:
         raise UsageError("--out DIR is required with --preset")
     width, height = _size(args)
+    codec = _video_codec(args, width, height)
     try:
         seq = build_sequence(
             args.preset,
@@ -274,13 +315,31 @@ def _render(args: argparse.Namespace) -> int:
     _check_output_folder(args.out)
     with tqdm(total=seq.n_frames, unit="frame", desc=seq.name, disable=None, leave=False) as bar:
         try:
-            written = write_sequence(seq, args.out, images=args.images, on_frame=bar.update)
+            written = write_sequence(
+                seq,
+                args.out,
+                images=args.images,
+                on_frame=bar.update,
+                codec=codec,
+                bitrate_bps=args.bitrate,
+            )
         except OSError as exc:
             print(f"{PROG}: error: {exc}", file=sys.stderr)
             return EXIT_WRITE_FAILED
+    video = ""
+    if not args.images:
+        video = (
+            f"{codec}"
+            + (
+                f" {(args.bitrate or default_bitrate_bps((width, height), seq.fps)) / 1e6:.2f} Mbit/s"
+                if codec == "h264"
+                else ""
+            )
+            + ", "
+        )
     print(
         f"wrote {written.n_frames} frames ({written.n_annotated} annotated) of {seq.name} at "
-        f"{width}x{height}, {written.frames_per_second:.1f} frames/s: {written.media_path}, "
+        f"{width}x{height}, {video}{written.frames_per_second:.1f} frames/s: {written.media_path}, "
         f"{written.json_path}, {written.camera_path}"
     )
     return 0

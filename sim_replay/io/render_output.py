@@ -5,10 +5,12 @@ Everything is written under temporary names (``DIR/.<name>.partial-<pid>...``) a
 place only after the last frame, media first and the JSON last, so an interrupted or failed run
 never leaves a file that looks complete; the temporaries are removed on any error, Ctrl-C included.
 
-Video: OpenCV's ``VideoWriter``. H.264 (``avc1``) is used when the installed OpenCV can encode it;
-the opencv-python(-headless) pip wheels cannot (their FFmpeg has no H.264 encoder), so the writer
-falls back to MPEG-4 Part 2 (``mp4v``) in the .mp4, which OpenCV, FFmpeg / PyAV and common desktop
-players decode (web browsers do not). Image folders hold lossless PNGs named ``<index:06d>.png``.
+Video: ``codec="h264"`` (``dronekey-sim``'s default) is libx264 through PyAV at a camera-like bitrate
+(``h264_video.py``). ``codec="mp4v"`` is OpenCV's ``VideoWriter`` as before: H.264 (``avc1``) when
+the installed OpenCV can encode it; the opencv-python(-headless) pip wheels cannot (their FFmpeg has
+no H.264 encoder), so it falls back to MPEG-4 Part 2 (``mp4v``) in the .mp4, which OpenCV, FFmpeg /
+PyAV and common desktop players decode (web browsers do not). Image folders hold lossless PNGs
+named ``<index:06d>.png``.
 """
 
 from __future__ import annotations
@@ -33,13 +35,22 @@ import numpy as np
 from dronekey.geometry.camera import CalibrationError, CameraModel
 from dronekey.geometry.drone_spec import DroneSpec
 from dronekey.sim_replay.annotations import FrameRecord, SequenceAnnotations
+from dronekey.sim_replay.io.h264_video import H264VideoSink
 from dronekey.sim_replay.io.sequence_writer import dumps_sequence
 
-__all__ = ["RenderedFrameLike", "RenderedSequenceLike", "WrittenSequence", "video_fourcc", "write_sequence"]
+__all__ = [
+    "VIDEO_CODECS",
+    "RenderedFrameLike",
+    "RenderedSequenceLike",
+    "WrittenSequence",
+    "video_fourcc",
+    "write_sequence",
+]
 
 log = logging.getLogger(__name__)
 
 _SAFE_NAME = re.compile(r"^[A-Za-z0-9_-][A-Za-z0-9._-]*$")
+VIDEO_CODECS = ("h264", "mp4v")  # h264: libx264 through PyAV; mp4v: OpenCV's VideoWriter
 
 
 class RenderedFrameLike(Protocol):
@@ -212,6 +223,8 @@ def write_sequence(
     *,
     images: bool = False,
     on_frame: Callable[[], object] | None = None,
+    codec: str = "mp4v",
+    bitrate_bps: int | None = None,
 ) -> WrittenSequence:
     """Render ``seq`` into ``out_dir`` (which must exist) and write video/frames, JSON and camera.
 
@@ -221,6 +234,10 @@ def write_sequence(
     out_dir : output folder.
     images : write a folder of PNG frames instead of the video.
     on_frame : called after each frame is written (a progress bar's ``update``).
+    codec : ``h264`` (libx264 through PyAV) or ``mp4v`` (OpenCV's writer); see the module docstring.
+        ``dronekey-sim`` defaults to ``h264``; this function keeps ``mp4v`` so the robustness matrix
+        renders (and the figures measured on them) stay as they were.
+    bitrate_bps : H.264 target bitrate, bit/s; None: about 8 Mbit/s at 1080p30, scaled by pixel rate.
 
     Raises
     ------
@@ -232,6 +249,8 @@ def write_sequence(
     out_dir = Path(out_dir)
     if not _SAFE_NAME.match(seq.name):
         raise ValueError(f"sequence name {seq.name!r} is not a safe file name")
+    if codec not in VIDEO_CODECS:
+        raise ValueError(f"video codec {codec!r} is not one of {', '.join(VIDEO_CODECS)}")
     name, size = seq.name, seq.camera.size
     tag = f"partial-{os.getpid()}"
     final_media = out_dir / (name if images else f"{name}.mp4")
@@ -241,7 +260,12 @@ def write_sequence(
     temporaries = [tmp_media, tmp_json, tmp_camera]
     try:
         start = time.perf_counter()
-        sink = _ImageFolderSink(tmp_media) if images else _VideoSink(tmp_media, seq.fps, size)
+        if images:
+            sink = _ImageFolderSink(tmp_media)
+        elif codec == "h264":
+            sink = H264VideoSink(tmp_media, seq.fps, size, bitrate_bps)
+        else:
+            sink = _VideoSink(tmp_media, seq.fps, size)
         records: list[FrameRecord] = []
         try:
             for expected, rendered in enumerate(seq):
