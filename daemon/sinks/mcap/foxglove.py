@@ -1,19 +1,20 @@
-"""Foxglove messages of one frame for the MCAP log (docs/design.md §6.3): image, calibration,
-annotations and transforms, as ``foxglove_schemas`` describes them.
+"""Foxglove messages of one frame for the log (docs/design.md §6.3): image, calibration,
+annotations and transforms, built as ``foxglove-sdk`` message objects (Foxglove's published
+protobuf schemas; ``.encode()`` gives the bytes the channels carry).
 
-Timestamps are ``{sec, nsec}``, quaternions ``x, y, z, w``, image data base64, and 2D image
-coordinates have their origin at the top-left *corner* of the top-left pixel (Foxglove's
-convention; DroneKey's pixels have it at the pixel's centre).
+Quaternions are ``x, y, z, w``, image data raw JPEG bytes, and 2D image coordinates have their
+origin at the top-left *corner* of the top-left pixel (Foxglove's convention; DroneKey's pixels
+have it at the pixel's centre).
 """
 
 from __future__ import annotations
 
-import base64
 import logging
 import math
 from collections.abc import Iterable
 
 import numpy as np
+from foxglove import messages as fgm
 
 from dronekey.daemon import messages
 from dronekey.geometry.camera import CameraModel
@@ -23,7 +24,9 @@ __all__ = [
     "HEADING_LABEL_MIN",
     "LINE_LOOP",
     "POINTS",
+    "TRACK_RGBA",
     "camera_calibration",
+    "colour",
     "compressed_image",
     "frame_transforms",
     "image_annotations",
@@ -33,38 +36,33 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-POINTS, LINE_LOOP = 1, 2  # foxglove.PointsAnnotationType values
+POINTS, LINE_LOOP = fgm.PointsAnnotationType.Points, fgm.PointsAnnotationType.LineLoop
 
 # Keypoint order colours (RGBA in [0, 1]): 1 red, 2 green, 3 blue, 4 yellow.
-_KEYPOINT_COLOURS = (
-    {"r": 1.0, "g": 0.2, "b": 0.2, "a": 1.0},
-    {"r": 0.2, "g": 1.0, "b": 0.2, "a": 1.0},
-    {"r": 0.3, "g": 0.5, "b": 1.0, "a": 1.0},
-    {"r": 1.0, "g": 0.9, "b": 0.1, "a": 1.0},
-)
-_ROI_COLOUR = {"r": 0.0, "g": 0.9, "b": 1.0, "a": 1.0}
-_TRACK_COLOUR = {"r": 1.0, "g": 0.6, "b": 0.0, "a": 1.0}
-_CLEAR = {"r": 0.0, "g": 0.0, "b": 0.0, "a": 0.0}
-_LABEL_BACKGROUND = {"r": 0.0, "g": 0.0, "b": 0.0, "a": 0.6}
+_KEYPOINT_RGBA = ((1.0, 0.2, 0.2, 1.0), (0.2, 1.0, 0.2, 1.0), (0.3, 0.5, 1.0, 1.0), (1.0, 0.9, 0.1, 1.0))
+_ROI_RGBA = (0.0, 0.9, 1.0, 1.0)
+TRACK_RGBA = (1.0, 0.6, 0.0, 1.0)
+_LABEL_BACKGROUND_RGBA = (0.0, 0.0, 0.0, 0.6)
 # Below this heading confidence a track label says "heading ?": the front may be the back.
 HEADING_LABEL_MIN = 0.5
 
 
 # --------------------------------------------------------------------------- builders
-def timestamp(t_ns: int) -> dict[str, int]:
-    """Foxglove ``time`` of an integer ns timestamp (negative times clamp to 0)."""
+def timestamp(t_ns: int) -> fgm.Timestamp:
+    """Foxglove ``Timestamp`` of an integer ns timestamp (negative times clamp to 0)."""
     sec, nsec = divmod(max(int(t_ns), 0), 1_000_000_000)
-    return {"sec": sec, "nsec": nsec}
+    return fgm.Timestamp(sec, nsec)
 
 
-def compressed_image(t_ns: int, frame_id: str, jpeg: bytes) -> dict:
-    """``foxglove.CompressedImage`` of JPEG bytes."""
-    return {
-        "timestamp": timestamp(t_ns),
-        "frame_id": frame_id,
-        "data": base64.b64encode(jpeg).decode("ascii"),
-        "format": "jpeg",
-    }
+def colour(rgba: tuple[float, float, float, float]) -> fgm.Color:
+    """Foxglove ``Color`` of (r, g, b, a) in [0, 1]."""
+    r, g, b, a = rgba
+    return fgm.Color(r=r, g=g, b=b, a=a)
+
+
+def compressed_image(t_ns: int, frame_id: str, jpeg: bytes) -> fgm.CompressedImage:
+    """``foxglove.CompressedImage`` of JPEG bytes (carried as bytes, not base64)."""
+    return fgm.CompressedImage(timestamp=timestamp(t_ns), frame_id=frame_id, data=bytes(jpeg), format="jpeg")
 
 
 def _distortion(dist: np.ndarray) -> tuple[str, list[float]]:
@@ -76,52 +74,59 @@ def _distortion(dist: np.ndarray) -> tuple[str, list[float]]:
     return "rational_polynomial", d[:8]
 
 
-def camera_calibration(t_ns: int, frame_id: str, camera: CameraModel) -> dict:
+def camera_calibration(t_ns: int, frame_id: str, camera: CameraModel) -> fgm.CameraCalibration:
     """``foxglove.CameraCalibration`` of an OpenCV camera model (monocular: R = I, P = [K | 0])."""
     model, D = _distortion(camera.dist)
     K = camera.K
     P = np.hstack([K, np.zeros((3, 1))])
-    return {
-        "timestamp": timestamp(t_ns),
-        "frame_id": frame_id,
-        "width": camera.width,
-        "height": camera.height,
-        "distortion_model": model,
-        "D": D,
-        "K": [float(v) for v in K.ravel()],
-        "R": [float(v) for v in np.eye(3).ravel()],
-        "P": [float(v) for v in P.ravel()],
-    }
+    return fgm.CameraCalibration(
+        timestamp=timestamp(t_ns),
+        frame_id=frame_id,
+        width=camera.width,
+        height=camera.height,
+        distortion_model=model,
+        D=D,
+        K=[float(v) for v in K.ravel()],
+        R=[float(v) for v in np.eye(3).ravel()],
+        P=[float(v) for v in P.ravel()],
+    )
 
 
-def _corner_point(u: float, v: float, sx: float, sy: float) -> dict[str, float]:
+def _corner_point(u: float, v: float, sx: float, sy: float) -> tuple[float, float]:
     """Full-frame pixel (centre origin) -> Foxglove point in the resized image (corner origin)."""
-    return {"x": (float(u) + 0.5) * sx, "y": (float(v) + 0.5) * sy}
+    return (float(u) + 0.5) * sx, (float(v) + 0.5) * sy
 
 
-def _points(t: dict, kind: int, pts: list[dict], colour: dict, colours: list[dict], thickness: float) -> dict:
-    return {
-        "timestamp": t,
-        "type": kind,
-        "points": pts,
-        "outline_color": colour,
-        "outline_colors": colours,
-        "fill_color": _CLEAR,
-        "thickness": thickness,
-        "metadata": [],
-    }
+def _points(
+    t: fgm.Timestamp,
+    kind,
+    pts: list[tuple[float, float]],
+    rgba: tuple,
+    colours: list[tuple],
+    thickness: float,
+) -> fgm.PointsAnnotation:
+    return fgm.PointsAnnotation(
+        timestamp=t,
+        type=kind,
+        points=[fgm.Point2(x=x, y=y) for x, y in pts],
+        outline_color=colour(rgba),
+        outline_colors=[colour(c) for c in colours],
+        fill_color=colour((0.0, 0.0, 0.0, 0.0)),
+        thickness=thickness,
+    )
 
 
-def _text(t: dict, position: dict, text: str, colour: dict, font_size: float) -> dict:
-    return {
-        "timestamp": t,
-        "position": position,
-        "text": text,
-        "font_size": font_size,
-        "text_color": colour,
-        "background_color": _LABEL_BACKGROUND,
-        "metadata": [],
-    }
+def _text(
+    t: fgm.Timestamp, at: tuple[float, float], text: str, rgba: tuple, font_size: float
+) -> fgm.TextAnnotation:
+    return fgm.TextAnnotation(
+        timestamp=t,
+        position=fgm.Point2(x=at[0], y=at[1]),
+        text=text,
+        font_size=font_size,
+        text_color=colour(rgba),
+        background_color=colour(_LABEL_BACKGROUND_RGBA),
+    )
 
 
 def track_label(track: Track) -> str:
@@ -153,7 +158,7 @@ def image_annotations(
     detection: KeypointDetection | None,
     tracks: Iterable[Track] = (),
     scale: tuple[float, float] = (1.0, 1.0),
-) -> dict:
+) -> fgm.ImageAnnotations:
     """``foxglove.ImageAnnotations`` of one frame: the detection's 4 keypoints with their order labels
     1-4, the crop ROI as a box, and a label per track that has keypoints (``track_label``: id,
     status, range and heading confidence).
@@ -176,18 +181,15 @@ def image_annotations(
         kp = np.asarray(detection.keypoints_px, dtype=np.float64).reshape(-1, 2)
         finite = [i for i in range(len(kp)) if np.all(np.isfinite(kp[i]))]
         pts = [_corner_point(kp[i, 0], kp[i, 1], sx, sy) for i in finite]
-        colours = [_KEYPOINT_COLOURS[i % 4] for i in finite]
-        points.append(_points(t, POINTS, pts, _KEYPOINT_COLOURS[0], colours, max(4.0, 10.0 * sx)))
-        for i, p in zip(finite, pts, strict=True):
-            label_at = {"x": p["x"] + 6.0 * sx, "y": p["y"] - 6.0 * sy}
-            texts.append(_text(t, label_at, str(i + 1), _KEYPOINT_COLOURS[i % 4], font))
+        colours = [_KEYPOINT_RGBA[i % 4] for i in finite]
+        points.append(_points(t, POINTS, pts, _KEYPOINT_RGBA[0], colours, max(4.0, 10.0 * sx)))
+        for i, (x, y) in zip(finite, pts, strict=True):
+            texts.append(_text(t, (x + 6.0 * sx, y - 6.0 * sy), str(i + 1), _KEYPOINT_RGBA[i % 4], font))
         x0, y0, side = (float(v) for v in detection.roi)
         box = [(x0, y0), (x0 + side, y0), (x0 + side, y0 + side), (x0, y0 + side)]  # corner coordinates
-        box_pts = [{"x": x * sx, "y": y * sy} for x, y in box]
-        points.append(_points(t, LINE_LOOP, box_pts, _ROI_COLOUR, [], max(1.0, 2.0 * sx)))
-        texts.append(
-            _text(t, {"x": x0 * sx, "y": y0 * sy - 4.0}, f"p={detection.presence:.2f}", _ROI_COLOUR, font)
-        )
+        box_pts = [(x * sx, y * sy) for x, y in box]
+        points.append(_points(t, LINE_LOOP, box_pts, _ROI_RGBA, [], max(1.0, 2.0 * sx)))
+        texts.append(_text(t, (x0 * sx, y0 * sy - 4.0), f"p={detection.presence:.2f}", _ROI_RGBA, font))
     for track in tracks:
         if track.keypoints_px is None or track.status == TrackStatus.LOST:
             continue
@@ -195,12 +197,12 @@ def image_annotations(
         if not np.all(np.isfinite(kp)):
             continue
         label = track_label(track)
-        corner = _corner_point(kp[:, 0].min(), kp[:, 1].max(), sx, sy)
-        texts.append(_text(t, {"x": corner["x"], "y": corner["y"] + font * 1.2}, label, _TRACK_COLOUR, font))
-    return {"circles": [], "points": points, "texts": texts}
+        x, y = _corner_point(kp[:, 0].min(), kp[:, 1].max(), sx, sy)
+        texts.append(_text(t, (x, y + font * 1.2), label, TRACK_RGBA, font))
+    return fgm.ImageAnnotations(timestamp=t, points=points, texts=texts)
 
 
-def frame_transforms(t_ns: int, parent_frame_id: str, tracks: Iterable[Track]) -> dict:
+def frame_transforms(t_ns: int, parent_frame_id: str, tracks: Iterable[Track]) -> fgm.FrameTransforms:
     """``foxglove.FrameTransforms`` camera -> ``drone_<track_id>`` for each track with a finite pose.
 
     The drone frame is the body frame (FRD) placed by ``p_cam = R @ p_body + t``: translation is
@@ -218,12 +220,12 @@ def frame_transforms(t_ns: int, parent_frame_id: str, tracks: Iterable[Track]) -
             continue
         q = q / norm
         transforms.append(
-            {
-                "timestamp": t,
-                "parent_frame_id": parent_frame_id,
-                "child_frame_id": f"drone_{int(track.track_id)}",
-                "translation": {"x": float(p[0]), "y": float(p[1]), "z": float(p[2])},
-                "rotation": {"x": float(q[1]), "y": float(q[2]), "z": float(q[3]), "w": float(q[0])},
-            }
+            fgm.FrameTransform(
+                timestamp=t,
+                parent_frame_id=parent_frame_id,
+                child_frame_id=f"drone_{int(track.track_id)}",
+                translation=fgm.Vector3(x=float(p[0]), y=float(p[1]), z=float(p[2])),
+                rotation=fgm.Quaternion(x=float(q[1]), y=float(q[2]), z=float(q[3]), w=float(q[0])),
+            )
         )
-    return {"transforms": transforms}
+    return fgm.FrameTransforms(transforms=transforms)

@@ -3,8 +3,9 @@
 The file is written straight to its file descriptor (no user-space buffer), so every completed
 chunk is in the kernel when a write returns and survives SIGKILL; ``Recording.close_chunk_if_older``
 bounds how long a chunk stays open. A file that failed before it held one complete chunk is
-deleted, so a full disk leaves no empty files behind. Every channel of ``TOPICS`` is declared at
-the start of each file, with its schema (encoding ``jsonschema``, messages ``json``).
+deleted, so a full disk leaves no empty files behind. Every channel (``channels.channel_specs``) is
+declared at the start of each file with its schema: Foxglove's protobuf schemas, the project's JSON
+schemas for tracks and status.
 """
 
 from __future__ import annotations
@@ -19,29 +20,12 @@ from pathlib import Path
 from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
 
 import dronekey
-from dronekey.daemon import messages
-from dronekey.daemon.sinks.mcap.foxglove_schemas import FOXGLOVE_SCHEMAS, foxglove_compatible
+from dronekey.daemon.sinks.mcap.channels import ChannelSpec
 from dronekey.geometry.camera import CameraModel
 
-__all__ = ["TOPICS", "Recording", "compression_type", "file_metadata"]
+__all__ = ["Recording", "compression_type", "file_metadata"]
 
 log = logging.getLogger(__name__)
-
-TOPICS: dict[str, str] = {
-    "/camera/image": "foxglove.CompressedImage",
-    "/camera/calibration": "foxglove.CameraCalibration",
-    "/dronekey/annotations": "foxglove.ImageAnnotations",
-    "/tf": "foxglove.FrameTransforms",
-    "/dronekey/tracks": "dronekey.Track",
-    "/dronekey/status": "dronekey.Status",
-}
-
-
-def _schema_data() -> dict[str, bytes]:
-    schemas = dict(FOXGLOVE_SCHEMAS)
-    schemas["dronekey.Track"] = foxglove_compatible(messages.load_schema("track"))
-    schemas["dronekey.Status"] = foxglove_compatible(messages.load_schema("status"))
-    return {name: json.dumps(schema, separators=(",", ":")).encode() for name, schema in schemas.items()}
 
 
 def compression_type(name: str) -> CompressionType:
@@ -110,21 +94,28 @@ class _FdStream:
 class Recording:
     """One open MCAP file with every channel declared."""
 
-    def __init__(self, path: Path, compression: CompressionType, chunk_size: int, metadata: dict[str, str]):
+    def __init__(
+        self,
+        path: Path,
+        specs: list[ChannelSpec],
+        compression: CompressionType,
+        chunk_size: int,
+        metadata: dict[str, str],
+    ):
         flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0)
         self._fd = os.open(path, flags, 0o644)
         try:
             self._stream = _FdStream(self._fd)
             self._writer = Writer(self._stream, chunk_size=chunk_size, compression=compression)
             self._writer.start(profile="", library=f"dronekey {dronekey.__version__}; {LIBRARY_IDENTIFIER}")
-            schema_ids = {
-                name: self._writer.register_schema(name, "jsonschema", data)
-                for name, data in _schema_data().items()
-            }
-            self._channels = {
-                topic: self._writer.register_channel(topic, "json", schema_ids[schema])
-                for topic, schema in TOPICS.items()
-            }
+            self._channels = {}
+            for spec in specs:
+                schema_id = self._writer.register_schema(
+                    spec.schema_name, spec.schema_encoding, spec.schema_data
+                )
+                self._channels[spec.topic] = self._writer.register_channel(
+                    spec.topic, spec.message_encoding, schema_id
+                )
             self._writer.add_metadata("dronekey", metadata)
         except BaseException:
             os.close(self._fd)
@@ -135,7 +126,7 @@ class Recording:
         self.path = path
         self.opened_mono = time.monotonic()
         self.last_calibration_t_ns: int | None = None
-        self._sequence = dict.fromkeys(TOPICS, 0)
+        self._sequence = dict.fromkeys(self._channels, 0)
         self._chunk_opened_mono: float | None = None
 
     @property

@@ -1,17 +1,25 @@
 """MCAP log of what the daemon sees, readable in Foxglove (docs/design.md §6.3).
 
-Channels (schema encoding ``jsonschema``, message encoding ``json``):
+Channels (``channels.py``): Foxglove's own types with Foxglove's published protobuf schemas, the
+project's track and status messages as JSON with their JSON schemas:
 
 ======================== ============================ ==============================================
 topic                    schema                       what
 ======================== ============================ ==============================================
-/camera/image            foxglove.CompressedImage     JPEG, ``image_rate_hz``, ``image_max_width`` px at most
+/camera/image            foxglove.CompressedImage     JPEG bytes at ``image_rate_hz``, ``image_max_width`` px
 /camera/calibration      foxglove.CameraCalibration   intrinsics of /camera/image (its size), ~1 Hz
 /dronekey/annotations    foxglove.ImageAnnotations    keypoints with order labels 1-4, crop ROI, track labels
 /tf                      foxglove.FrameTransforms     camera frame (= camera id) -> drone_<track_id>
-/dronekey/tracks         dronekey.Track               the Zenoh track message, one per track update
-/dronekey/status         dronekey.Status              the Zenoh status message
+/dronekey/scene          foxglove.SceneUpdate         camera frustum, a quadcopter per track, its recent path
+/camera/fix, /camera/fov foxglove.LocationFix,        with --camera-geo: the camera on the map and its
+                         foxglove.GeoJSON             field of view, ~1 Hz
+/dronekey/fix            foxglove.LocationFix         with --camera-geo: each track, ENU covariance
+/dronekey/tracks         dronekey.Track (JSON)        the Zenoh track message, one per track update
+/dronekey/status         dronekey.Status (JSON)       the Zenoh status message
 ======================== ============================ ==============================================
+
+Every message goes to the file and, with ``live`` (``--foxglove-ws``), to the live WebSocket view;
+with ``mcap.enabled`` false only to the live view.
 
 Files are chunked and compressed (zstd by default), named ``<prefix>_<camera_id>_<UTC start>.mcap``
 and rotated by size or duration; retention deletes the oldest of these files (never anything else)
@@ -36,17 +44,15 @@ import re
 import time
 from pathlib import Path
 
-import cv2
-import numpy as np
-
 from dronekey.daemon import messages
 from dronekey.daemon.config.camera import check_camera_id
 from dronekey.daemon.config.mcap import McapConfig
 from dronekey.daemon.geo import CameraGeo
 from dronekey.daemon.sinks.base import FrameUpdate, Sink
-from dronekey.daemon.sinks.mcap import foxglove
-from dronekey.daemon.sinks.mcap.images import ImageSchedule, ImageSize
-from dronekey.daemon.sinks.mcap.recording import TOPICS, Recording, compression_type, file_metadata
+from dronekey.daemon.sinks.foxglove_ws import FoxgloveLiveServer
+from dronekey.daemon.sinks.mcap.channels import ChannelSpec, channel_specs
+from dronekey.daemon.sinks.mcap.frame_content import FrameContent, Message, periodic_due
+from dronekey.daemon.sinks.mcap.recording import Recording, compression_type, file_metadata
 from dronekey.daemon.sinks.mcap.retention import MB, Retention, min_free_bytes
 from dronekey.geometry.camera import CameraModel
 
@@ -54,7 +60,6 @@ __all__ = ["McapSink"]
 
 log = logging.getLogger(__name__)
 
-_CALIBRATION_PERIOD_NS = 1_000_000_000  # re-written so a reader seeking anywhere finds one nearby
 _RETENTION_CHECK_S = 5.0
 _FILE_PREFIX = re.compile(r"^[A-Za-z0-9_.\-]+$")
 
@@ -78,7 +83,9 @@ class McapSink(Sink):
     camera_id : str
         Camera id: file-name part and the frame id of the images, calibration and /tf parent.
     camera_geo : CameraGeo, optional
-        Adds WGS84 fields to /dronekey/tracks, as on Zenoh.
+        Adds WGS84 fields to /dronekey/tracks, as on Zenoh, and the map channels.
+    live : FoxgloveLiveServer, optional
+        The live view: gets every message too, and is closed with the sink.
     chunk_size : int
         Uncompressed bytes per chunk, at most (>= 1024).
     chunk_max_age_s : float
@@ -103,12 +110,13 @@ class McapSink(Sink):
         camera_id: str,
         *,
         camera_geo: CameraGeo | None = None,
+        live: FoxgloveLiveServer | None = None,
         chunk_size: int = 1 << 20,
         chunk_max_age_s: float = 2.0,
         retry_interval_s: float = 5.0,
         file_prefix: str = "dronekey",
     ) -> None:
-        if config.dir is None:
+        if config.dir is None and config.enabled:
             raise ValueError("mcap.dir must be a folder, got None")
         for name, value, ok, allowed in (
             ("chunk_size", chunk_size, chunk_size >= 1024, ">= 1024"),
@@ -123,12 +131,14 @@ class McapSink(Sink):
         ):
             if not ok:
                 raise ValueError(f"{name} must be {allowed}, got {value!r}")
-        self._directory = Path(config.dir)
+        self._record = bool(config.enabled)
+        self._directory = Path(config.dir if config.dir is not None else ".")
         self._camera = camera
         self._camera_id = check_camera_id(camera_id)
-        self._camera_geo = camera_geo
-        image_period_ns = int(1e9 / config.image_rate_hz) if config.image_rate_hz > 0 else None
-        self._jpeg_params = [cv2.IMWRITE_JPEG_QUALITY, config.jpeg_quality]
+        self._specs: list[ChannelSpec] = channel_specs(with_geo=camera_geo is not None)
+        self._content = FrameContent(config, camera, self._camera_id, camera_geo)
+        self._live = live
+        self._live_periodic_t_ns: int | None = None
         self._rotate_bytes = int(config.rotate_size_mb * MB)
         self._rotate_duration_s = config.rotate_duration_s
         self._retention = Retention(
@@ -153,31 +163,46 @@ class McapSink(Sink):
         self._next_retention_mono = 0.0
         self._files_opened = 0
         self._frames_not_recorded = 0
-        self._counts = dict.fromkeys(TOPICS, 0)
+        self._counts = {spec.topic: 0 for spec in self._specs}
         self._last_frame: tuple[int, int] | None = None  # (frame t_ns, monotonic ns when it arrived)
         self._pending_status: dict | None = None
-        self._images = ImageSchedule(image_period_ns)  # the sink thread's: images written
-        self._offers = ImageSchedule(image_period_ns)  # the pipeline thread's: images queued
-        self._image_size = ImageSize(camera, config.image_max_width)
 
     # ------------------------------------------------------------------ Sink interface
     def handle_update(self, update: FrameUpdate) -> None:
-        """Record one frame: tracks, annotations, transforms, and an image when one is due."""
+        """Record one frame (``FrameContent``) and send it to the live view."""
         if self._closed:
             return
-        self._last_frame = (int(update.t_ns), time.monotonic_ns())
-        if not self._ensure_recording(update.t_ns):
+        t_ns = int(update.t_ns)
+        self._last_frame = (t_ns, time.monotonic_ns())
+        frame = self._content.frame(update)
+        if self._content.image_size_changed:  # re-send the calibration for the new size
+            self._content.image_size_changed = False
+            self._live_periodic_t_ns = None
+            if self._recording is not None:
+                self._recording.last_calibration_t_ns = None
+        status = self._pending_status
+        if status is not None:
+            frame.append(("/dronekey/status", t_ns, messages.to_json_bytes(status)))
+            self._pending_status = None
+        if self._live is not None:
+            if periodic_due(self._live_periodic_t_ns, t_ns):
+                self._send_live(self._content.periodic(t_ns))
+                self._live_periodic_t_ns = t_ns
+            self._send_live(frame)
+        if not self._record:
+            return
+        if not self._ensure_recording(t_ns):
             self._frames_not_recorded += 1
             return
         try:
-            self._rotate_if_due(update.t_ns)
+            self._rotate_if_due(t_ns)
             if self._recording is None:
                 self._frames_not_recorded += 1
                 return
-            self._write_frame(update)
-            if self._pending_status is not None:
-                self._write("/dronekey/status", update.t_ns, messages.to_json_bytes(self._pending_status))
-                self._pending_status = None
+            if periodic_due(self._recording.last_calibration_t_ns, t_ns):
+                self._write_all(self._content.periodic(t_ns))
+                self._recording.last_calibration_t_ns = t_ns
+            self._write_all(frame)
             self._recording.close_chunk_if_older(self._chunk_max_age_s)
             self._check_disk_if_due()
         except OSError as exc:
@@ -198,10 +223,12 @@ class McapSink(Sink):
             return
         frame_t_ns, arrived_ns = self._last_frame
         t_ns = frame_t_ns + (time.monotonic_ns() - arrived_ns)
-        if not self._ensure_recording(t_ns):
+        data = messages.to_json_bytes(status)
+        self._send_live([("/dronekey/status", t_ns, data)])
+        if not self._record or not self._ensure_recording(t_ns):
             return
         try:
-            self._write("/dronekey/status", t_ns, messages.to_json_bytes(status))
+            self._write("/dronekey/status", t_ns, data)
             self._recording.close_chunk_if_older(self._chunk_max_age_s)  # also while frames stall
         except OSError as exc:
             self._fail(exc)
@@ -209,9 +236,10 @@ class McapSink(Sink):
     def wants_image(self, t_ns: int) -> bool:
         """True for the frames on the image grid (``image_rate_hz`` of frame time), so the queue
         carries a full frame only for the images that will be written."""
-        if self._closed or not self._offers.due(t_ns):
+        offers = self._content.offers
+        if self._closed or not offers.due(t_ns):
             return False
-        self._offers.taken(t_ns)
+        offers.taken(t_ns)
         return True
 
     def health(self) -> dict:
@@ -228,6 +256,7 @@ class McapSink(Sink):
             "messages": sum(self._counts.values()),
             "frames_not_recorded": self._frames_not_recorded,
             "min_free_mb": round(self._retention.min_free_bytes / MB, 1),
+            "live": f"ws://{self._live.host}:{self._live.port}" if self._live is not None else None,
         }
 
     def failing(self) -> str | None:
@@ -239,9 +268,11 @@ class McapSink(Sink):
         return {"not recorded": self._frames_not_recorded}
 
     def close(self) -> None:
-        """Finalise the current file (summary, footer, fsync)."""
+        """Finalise the current file (summary, footer, fsync) and stop the live view."""
         self._closed = True
         self._finish_recording()
+        if self._live is not None:
+            self._live.close()
 
     # ------------------------------------------------------------------ public read-outs
     @property
@@ -253,48 +284,15 @@ class McapSink(Sink):
     def current_file(self) -> Path | None:
         return self._recording.path if self._recording is not None else None
 
-    # ------------------------------------------------------------------ frame content
-    def _write_frame(self, update: FrameUpdate) -> None:
-        t_ns = int(update.t_ns)
-        for track in update.tracks:
-            message = messages.track_message(track, self._camera_id, self._camera_geo)
-            self._write("/dronekey/tracks", t_ns, messages.to_json_bytes(message))
-        if update.image is not None and self._images.due(t_ns):
-            self._write_image(t_ns, update.image)
-        if self._recording.last_calibration_t_ns is None or not (
-            0 <= t_ns - self._recording.last_calibration_t_ns < _CALIBRATION_PERIOD_NS
-        ):
-            self._write_calibration(t_ns)
-        annotations = foxglove.image_annotations(
-            t_ns, update.detection, update.tracks, self._image_size.scale
-        )
-        self._write("/dronekey/annotations", t_ns, messages.to_json_bytes(annotations))
-        transforms = foxglove.frame_transforms(t_ns, self._camera_id, update.tracks)
-        if transforms["transforms"]:
-            self._write("/tf", t_ns, messages.to_json_bytes(transforms))
+    # ------------------------------------------------------------------ destinations
+    def _send_live(self, items: list[Message]) -> None:
+        if self._live is not None:
+            for topic, t_ns, data in items:
+                self._live.log(topic, t_ns, data)
 
-    def _write_image(self, t_ns: int, image: np.ndarray) -> None:
-        height, width = image.shape[:2]
-        if self._image_size.source_size != (width, height):
-            self._image_size.set_source(width, height)
-            self._recording.last_calibration_t_ns = None  # re-write it for the new size
-        out_w, out_h = self._image_size.image_size
-        small = (
-            image
-            if (out_w, out_h) == (width, height)
-            else cv2.resize(image, (out_w, out_h), interpolation=cv2.INTER_AREA)
-        )
-        ok, jpeg = cv2.imencode(".jpg", small, self._jpeg_params)
-        if not ok:
-            raise ValueError(f"JPEG encoding failed for an image of shape {image.shape}")
-        message = foxglove.compressed_image(t_ns, self._camera_id, jpeg.tobytes())
-        self._write("/camera/image", t_ns, messages.to_json_bytes(message))
-        self._images.taken(t_ns)
-
-    def _write_calibration(self, t_ns: int) -> None:
-        message = foxglove.camera_calibration(t_ns, self._camera_id, self._image_size.image_camera)
-        self._write("/camera/calibration", t_ns, messages.to_json_bytes(message))
-        self._recording.last_calibration_t_ns = int(t_ns)
+    def _write_all(self, items: list[Message]) -> None:
+        for topic, t_ns, data in items:
+            self._write(topic, t_ns, data)
 
     def _write(self, topic: str, t_ns: int, data: bytes) -> None:
         self._recording.write(topic, t_ns, data)
@@ -316,6 +314,7 @@ class McapSink(Sink):
                 raise OSError(errno.ENOSPC, self._retention.low_space_text(free))
             self._recording = Recording(
                 self._new_path(),
+                self._specs,
                 self._compression,
                 self._chunk_size,
                 file_metadata(self._camera_id, self._camera),

@@ -1,13 +1,13 @@
 """MCAP sink: real files written and read back with the ``mcap`` reader.
 
-Covers the channels and Foxglove schemas of docs/design.md §6.3, rotation by size and duration, retention
+Covers the channels and Foxglove schemas of docs/design.md §6.3 (Foxglove's types decoded with Foxglove's
+published protobuf classes, see foxglove_checks), rotation by size and duration, retention
 (our oldest files only), an unwritable or full folder (health says so, the sink recovers), and a
 writer killed with SIGKILL (completed chunks stay readable with ``StreamReader``).
 """
 
 from __future__ import annotations
 
-import base64
 import json
 import logging
 import os
@@ -24,7 +24,8 @@ import numpy as np
 import paths
 import pytest
 from factories import make_track
-from json_checks import schema_errors, strict_json
+from foxglove_checks import decode, schema_matches_published
+from json_checks import schema_errors
 from mcap.reader import NonSeekingReader, make_reader
 from mcap.records import Channel, Footer, Message, Schema
 from mcap.stream_reader import StreamReader
@@ -32,12 +33,14 @@ from mcap.stream_reader import StreamReader
 from dronekey.daemon import messages
 from dronekey.daemon.config.mcap import McapConfig
 from dronekey.daemon.sinks.base import FrameUpdate
-from dronekey.daemon.sinks.mcap import foxglove, foxglove_schemas
-from dronekey.daemon.sinks.mcap.recording import TOPICS
+from dronekey.daemon.sinks.mcap import foxglove
+from dronekey.daemon.sinks.mcap.channels import GEO_TOPICS, TOPICS, foxglove_compatible
 from dronekey.daemon.sinks.mcap.sink import McapSink
 from dronekey.geometry.camera import CameraModel
 from dronekey.types import KeypointDetection, Track, TrackStatus
 
+# The channels of a recording without --camera-geo.
+PLAIN_TOPICS = {topic: schema for topic, schema in TOPICS.items() if topic not in GEO_TOPICS}
 FPS = 30
 FRAME_NS = 1_000_000_000 // FPS
 KEYPOINTS = np.array([[600.0, 300.0], [660.0, 304.0], [658.0, 350.0], [602.0, 346.0]])
@@ -105,9 +108,10 @@ def read_finalised(path: Path):
         reader = make_reader(f)
         summary = reader.get_summary()
         assert summary is not None, f"{path} has no summary"
-        by_topic: dict[str, list] = {t: [] for t in TOPICS}
-        for _schema, channel, message in reader.iter_messages():
-            by_topic[channel.topic].append((message.log_time, strict_json(message.data)))
+        by_topic: dict[str, list] = {c.topic: [] for c in summary.channels.values()}
+        for schema, channel, message in reader.iter_messages():
+            decoded = decode(schema.name, channel.message_encoding, message.data)
+            by_topic[channel.topic].append((message.log_time, decoded))
     return summary, by_topic
 
 
@@ -156,15 +160,19 @@ def test_close_finalises_a_file_with_every_channel_schema_and_count(tmp_path):
     (path,) = mcap_files(tmp_path)
     summary, by_topic = read_finalised(path)
     channels = {c.topic: c for c in summary.channels.values()}
-    assert set(channels) == set(TOPICS)
-    for topic, schema_name in TOPICS.items():
+    assert set(channels) == set(PLAIN_TOPICS)
+    for topic, schema_name in PLAIN_TOPICS.items():
         schema = summary.schemas[channels[topic].schema_id]
+        encoding = "json" if schema_name.startswith("dronekey.") else "protobuf"
         assert (schema.name, schema.encoding, channels[topic].message_encoding) == (
             schema_name,
-            "jsonschema",
-            "json",
+            "jsonschema" if encoding == "json" else "protobuf",
+            encoding,
         )
-        assert foxglove_parser_errors(json.loads(schema.data)) == [], topic
+        if encoding == "json":
+            assert foxglove_parser_errors(json.loads(schema.data)) == [], topic
+        else:
+            assert schema_matches_published(schema.name, schema.data) == [], topic
     counts = {summary.channels[c].topic: n for c, n in summary.statistics.channel_message_counts.items()}
     expected = {
         "/dronekey/tracks": 60,  # 2 tracks x 30 frames
@@ -172,17 +180,14 @@ def test_close_finalises_a_file_with_every_channel_schema_and_count(tmp_path):
         "/tf": 30,
         "/camera/image": 2,  # 2 Hz over frames t = 0 .. 0.967 s: slots at 0 and 0.5 s
         "/camera/calibration": 1,  # at the first frame, then once per second of frame time
+        "/dronekey/scene": 30,
         "/dronekey/status": 2,
     }
     assert counts == expected == sink.message_counts
     assert all(ci.compression == "zstd" for ci in summary.chunk_indexes)
 
-    # Foxglove messages validate against their channel's schema, ours against the contract schemas
-    # (the channel carries a Foxglove-typed rendition of those, see foxglove_schemas.foxglove_compatible).
-    for topic in ("/camera/image", "/camera/calibration", "/dronekey/annotations", "/tf"):
-        schema = json.loads(summary.schemas[channels[topic].schema_id].data)
-        for _, message in by_topic[topic]:
-            assert schema_errors(message, schema) == [], topic
+    # Foxglove messages decoded with the published classes (read_finalised); ours validate against the
+    # contract schemas (the channel carries a Foxglove-typed rendition of them: foxglove_compatible).
     for _, message in by_topic["/dronekey/tracks"]:
         assert schema_errors(message, messages.load_schema("track")) == []
     for _, message in by_topic["/dronekey/status"]:
@@ -195,29 +200,30 @@ def test_close_finalises_a_file_with_every_channel_schema_and_count(tmp_path):
 
     # The image is a 960x540 JPEG at frame time; the calibration describes that size.
     t_img, image_msg = by_topic["/camera/image"][1]
-    assert t_img == 16 * FRAME_NS and image_msg["timestamp"] == {
-        "sec": 0,
-        "nsec": 16 * FRAME_NS,
-    }  # first >= 0.5 s
-    assert image_msg["format"] == "jpeg" and image_msg["frame_id"] == "cam0"
-    jpeg = cv2.imdecode(np.frombuffer(base64.b64decode(image_msg["data"]), np.uint8), cv2.IMREAD_COLOR)
+    assert t_img == 16 * FRAME_NS  # first >= 0.5 s
+    assert (image_msg.timestamp.seconds, image_msg.timestamp.nanos) == (0, 16 * FRAME_NS)
+    assert image_msg.format == "jpeg" and image_msg.frame_id == "cam0"
+    jpeg = cv2.imdecode(np.frombuffer(image_msg.data, np.uint8), cv2.IMREAD_COLOR)  # bytes, not base64
     assert jpeg.shape == (540, 960, 3)
     _, calib = by_topic["/camera/calibration"][0]
-    assert (calib["width"], calib["height"], calib["distortion_model"]) == (960, 540, "plumb_bob")
-    assert calib["K"][0] == pytest.approx(camera().fx * 0.75)
-    assert calib["K"][2] == pytest.approx((camera().cx + 0.5) * 0.75 - 0.5)
-    assert calib["P"][:3] == calib["K"][:3] and len(calib["P"]) == 12
+    assert (calib.width, calib.height, calib.distortion_model) == (960, 540, "plumb_bob")
+    assert calib.K[0] == pytest.approx(camera().fx * 0.75)
+    assert calib.K[2] == pytest.approx((camera().cx + 0.5) * 0.75 - 0.5)
+    assert calib.P[:3] == calib.K[:3] and len(calib.P) == 12
 
     # Annotations: 4 keypoints with labels 1-4 (corner origin, scaled to 960 wide) and the ROI box.
     _, ann = by_topic["/dronekey/annotations"][0]
-    points = {p["type"]: p for p in ann["points"]}
-    kp = points[foxglove.POINTS]["points"]
+    points = {p.type: p for p in ann.points}
+    kp = points[int(foxglove.POINTS)].points
     expected_kp = (KEYPOINTS + 0.5) * 0.75
-    assert np.allclose([[p["x"], p["y"]] for p in kp], expected_kp)
-    assert [t["text"] for t in ann["texts"][:4]] == ["1", "2", "3", "4"]
-    box = points[foxglove.LINE_LOOP]["points"]
-    assert box[0] == {"x": 500 * 0.75, "y": 200 * 0.75} and box[2] == {"x": 756 * 0.75, "y": 456 * 0.75}
-    labels = [t["text"] for t in ann["texts"][4:] if t["text"].startswith("#")]
+    assert np.allclose([[p.x, p.y] for p in kp], expected_kp)
+    assert [t.text for t in ann.texts[:4]] == ["1", "2", "3", "4"]
+    box = points[int(foxglove.LINE_LOOP)].points
+    assert (box[0].x, box[0].y) == (500 * 0.75, 200 * 0.75) and (box[2].x, box[2].y) == (
+        756 * 0.75,
+        456 * 0.75,
+    )
+    labels = [t.text for t in ann.texts[4:] if t.text.startswith("#")]
     assert labels == ["#1 confirmed 20.0 m  heading 0.82", "#2 confirmed 20.0 m  heading ?"]
     # The track messages carry the confidence too, typed for Foxglove's plots.
     assert [m["heading_confidence"] for _, m in by_topic["/dronekey/tracks"][:2]] == [0.82, 0.3]
@@ -227,10 +233,11 @@ def test_close_finalises_a_file_with_every_channel_schema_and_count(tmp_path):
 
     # Transforms camera -> drone_<id>, quaternion in Foxglove's x, y, z, w order.
     _, tf = by_topic["/tf"][0]
-    first_tf = tf["transforms"][0]
-    assert (first_tf["parent_frame_id"], first_tf["child_frame_id"]) == ("cam0", "drone_1")
-    assert first_tf["translation"] == {"x": 0.5, "y": -1.0, "z": 20.0}
-    assert first_tf["rotation"] == pytest.approx({"x": 0.3826834, "y": 0.0, "z": 0.0, "w": 0.9238795})
+    first_tf = tf.transforms[0]
+    assert (first_tf.parent_frame_id, first_tf.child_frame_id) == ("cam0", "drone_1")
+    assert (first_tf.translation.x, first_tf.translation.y, first_tf.translation.z) == (0.5, -1.0, 20.0)
+    rotation = first_tf.rotation
+    assert [rotation.x, rotation.y, rotation.z, rotation.w] == pytest.approx([0.3826834, 0.0, 0.0, 0.9238795])
 
 
 def test_track_label_shows_the_heading_confidence():
@@ -284,16 +291,14 @@ def test_worker_queues_the_frame_only_for_the_images_written(tmp_path):
     assert sum(carried) == len(written)
 
 
-def test_mcap_schemas_are_what_foxglove_can_parse():
-    for name, schema in foxglove_schemas.FOXGLOVE_SCHEMAS.items():
-        assert foxglove_parser_errors(schema) == [], name
+def test_json_schemas_are_what_foxglove_can_parse():
     contract = messages.load_schema("track")
     assert foxglove_parser_errors(contract)  # nullable types and 3x3 lists: Foxglove would refuse it
-    reduced = foxglove_schemas.foxglove_compatible(contract)
+    reduced = foxglove_compatible(contract)
     assert foxglove_parser_errors(reduced) == []
     assert "position_cov" not in reduced["properties"] and "position_cov" in reduced["$comment"]
     assert reduced["properties"]["reprojection_px"]["type"] == "number"
-    assert foxglove_parser_errors(foxglove_schemas.foxglove_compatible(messages.load_schema("status"))) == []
+    assert foxglove_parser_errors(foxglove_compatible(messages.load_schema("status"))) == []
 
 
 def test_status_log_time_follows_the_frame_clock(tmp_path):
@@ -335,11 +340,11 @@ def test_rotation_by_size_finalises_each_file_with_all_channels_and_calibration(
     sink.close()
     files = mcap_files(tmp_path)
     assert len(files) >= 3
-    total: dict[str, int] = dict.fromkeys(TOPICS, 0)
+    total: dict[str, int] = dict.fromkeys(PLAIN_TOPICS, 0)
     for path in files:
         summary, by_topic = read_finalised(path)
-        assert {c.topic for c in summary.channels.values()} == set(TOPICS)
-        assert len(summary.schemas) == len(TOPICS)
+        assert {c.topic for c in summary.channels.values()} == set(PLAIN_TOPICS)
+        assert len(summary.schemas) == len(PLAIN_TOPICS)
         assert by_topic["/camera/calibration"], f"{path.name} has no calibration"
         assert by_topic["/camera/calibration"][0][0] == by_topic["/dronekey/annotations"][0][0]
         for topic, items in by_topic.items():
@@ -378,7 +383,7 @@ def test_retention_deletes_only_our_oldest_recordings(tmp_path):
         chunk_size=64 * 1024,
     )
     pictures = [picture(k) for k in range(4)]
-    for i in range(40):
+    for i in range(60):  # JPEG bytes: about 25 kB a frame
         sink.handle_update(update(i, image=pictures[i % 4]))
     sink.close()
     assert not ours_old.exists()
@@ -552,7 +557,7 @@ def test_sigkill_leaves_completed_chunks_readable(tmp_path):
     assert stopped_by is not None
     schemas = {r.name for r in records if isinstance(r, Schema)}
     channels = {r.id: r.topic for r in records if isinstance(r, Channel)}
-    assert schemas == set(TOPICS.values()) and set(channels.values()) == set(TOPICS)
+    assert schemas == set(PLAIN_TOPICS.values()) and set(channels.values()) == set(PLAIN_TOPICS)
     found = [r for r in records if isinstance(r, Message)]
     topics = [channels[m.channel_id] for m in found]
     assert topics.count("/dronekey/annotations") >= 20
@@ -560,8 +565,11 @@ def test_sigkill_leaves_completed_chunks_readable(tmp_path):
     assert topics.count("/camera/image") >= 2
     times = [m.log_time for m in found if channels[m.channel_id] == "/dronekey/annotations"]
     assert times == [i * FRAME_NS for i in range(len(times))]  # a gap-free prefix of what was written
+    schema_of = {r.id: r.name for r in records if isinstance(r, Schema)}
+    channel_records = {r.id: r for r in records if isinstance(r, Channel)}
     for m in found:
-        strict_json(m.data)
+        channel = channel_records[m.channel_id]
+        decode(schema_of[channel.schema_id], channel.message_encoding, m.data)
 
     # The mcap reader for streams gives the same messages when asked not to sort (sorting reads to the
     # end first, and the end is the cut).
