@@ -157,6 +157,8 @@ def _cmd_robustness(args: argparse.Namespace) -> int:
     frames = args.frames if args.frames is not None else (QUICK_FRAMES if args.quick else DEFAULT_FRAMES)
     if frames <= 0:
         raise _UsageError(f"--frames must be positive, got {frames}")
+    if args.drone_free is not None and args.drone_free < 0:
+        raise _UsageError(f"--drone-free must be >= 0, got {args.drone_free}")
     if args.seeds is not None:
         negative = [s for s in args.seeds if s < 0]
         if negative:
@@ -175,11 +177,14 @@ def _cmd_robustness(args: argparse.Namespace) -> int:
             tuning=args.tuning,
             model_path=args.model,
             backgrounds=QUICK_BACKGROUNDS if args.quick else BACKGROUNDS,
-            drone_free=QUICK_DRONE_FREE if args.quick else DRONE_FREE_SEQUENCES,
+            drone_free=args.drone_free
+            if args.drone_free is not None
+            else (QUICK_DRONE_FREE if args.quick else DRONE_FREE_SEQUENCES),
             width=width,
             height=height,
             mirror_average=not args.no_mirror_average,
             progress=sys.stderr.isatty(),
+            select=args.select,
         )
     except ImportError as exc:  # --background photos without scikit-image / scikit-learn
         raise _UsageError(str(exc)) from None
@@ -279,6 +284,19 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--tuning", action="store_true", help="use (or name with --seeds) the tuning seed set")
     r.add_argument("--model", default=None, help="ONNX model (default: the shipped one)")
     r.add_argument("--quick", action="store_true", help="reduced matrix for a smoke test (see above)")
+    r.add_argument(
+        "--drone-free",
+        type=int,
+        metavar="N",
+        help="drone-free sequences in the matrix (default 20; 5 with --quick); the j-th keeps its seed",
+    )
+    r.add_argument(
+        "--select",
+        nargs="+",
+        metavar="GLOB",
+        help="only the sequences whose name matches one of these patterns, with their matrix seeds "
+        "(e.g. '*nodrone*' for the drone-free part alone, 's70??-seq11-off-*')",
+    )
     r.add_argument("--size", default="1920x1080", help="image size WIDTHxHEIGHT (figures use the default)")
     r.add_argument(
         "--no-mirror-average", action="store_true", help="run each crop once (the daemon's default averages)"

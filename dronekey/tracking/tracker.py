@@ -307,6 +307,9 @@ class Tracker:
         if scores and float(np.mean(scores)) < cfg.confirm_presence:
             log.debug("track %d: mean presence %.2f too low; not confirmed", track.track_id, np.mean(scores))
             return False
+        if scores and min(scores) < cfg.confirm_min_presence:
+            log.debug("track %d: a hit's presence %.2f too low; not confirmed", track.track_id, min(scores))
+            return False
         return True
 
     def _miss(self, track: TrackRecord) -> None:

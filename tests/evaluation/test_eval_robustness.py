@@ -219,6 +219,15 @@ def test_rerun_reuses_the_renders(tiny):
     assert os.stat(paths[0]).st_mtime_ns == stamps[0]
 
 
+def test_select_scores_only_the_matching_sequences_with_their_matrix_seeds(tiny):
+    out, first = tiny
+    free = [s for s in first.sequences if s.rendered.entry.no_drone]
+    only = run_robustness(out, **TINY, select=["*nodrone*"])
+    assert [s.rendered.entry for s in only.sequences] == [s.rendered.entry for s in free]
+    assert only.settings["reused_sequences"] == len(free)  # same seeds, so the same renders
+    assert only.settings["select"] == ["*nodrone*"]
+
+
 def test_cli_json_then_table(tmp_path, capsys):
     argv = ["robustness", "--out", str(tmp_path), "--quick", "--frames", "3", "--size", "320x180"]
     assert main([*argv, "--json"]) == 0
@@ -241,6 +250,8 @@ def test_cli_json_then_table(tmp_path, capsys):
         (["--model", "/nonexistent.onnx"], "--model not found"),
         (["--seeds", "6001"], "overlap the tuning seeds"),
         (["--tuning", "--seeds", "7001"], "overlap the reporting seeds"),
+        (["--drone-free", "-1"], "--drone-free must be >= 0, got -1"),
+        (["--select", "s99*"], "select ['s99*'] matches no sequence"),
     ],
 )
 def test_bad_arguments_are_one_line(extra, message, tmp_path, capsys):

@@ -66,6 +66,43 @@ def test_a_speck_in_a_big_crop_is_refused():
     assert "spread" in check_detection(big, CAMERA.size)
 
 
+@pytest.mark.parametrize("yaw", [0.0, 30.0, 60.0, 90.0, 135.0])
+@pytest.mark.parametrize("distance", [3.0, 8.0, 20.0])
+def test_a_drone_framed_as_the_crop_policy_frames_it_fills_its_share_of_the_crop(yaw, distance):
+    det = drone_detection(t=(0.3, -0.4, distance), yaw=yaw)
+    assert check_detection(det, CAMERA.size) is None
+
+
+def test_clutter_that_shrinks_when_recut_around_it_is_refused():
+    # The pattern of a building corner read as a drone (tuning seeds): the crop was cut for the
+    # "drone" the network found, and in it the network finds one a third the crop's side across.
+    det = drone_detection(t=(0.3, -0.4, 5.0))
+    x0, y0, side = det.roi
+    centre = det.keypoints_px.mean(axis=0)
+    shrunk = centre + (det.keypoints_px - centre) * 0.32 / _spread_in_crop(det)
+    reason = check_detection(KeypointDetection(shrunk, 0.9, det.roi), CAMERA.size)
+    assert reason is not None and "spread" in reason
+    loose = PlausibilityConfig(spread_in_crop=(0.12, 1.1))
+    assert check_detection(KeypointDetection(shrunk, 0.9, det.roi), CAMERA.size, loose) is None
+
+
+def test_a_tiny_drone_in_a_minimum_size_crop_passes():
+    # 12 px across in the crop policy's smallest crop (32 px): 0.3 of its side, and still a drone.
+    det = drone_detection(t=(0.3, -0.4, 5.0))
+    centre = det.keypoints_px.mean(axis=0)
+    kp = centre + (det.keypoints_px - centre) * 12.0 / max(_pairs(det.keypoints_px))
+    roi = (int(centre[0]) - 16, int(centre[1]) - 16, 32)
+    assert check_detection(KeypointDetection(kp, 0.99, roi), CAMERA.size) is None
+
+
+def _pairs(kp):
+    return [np.linalg.norm(kp[i] - kp[j]) for i in range(4) for j in range(i + 1, 4)]
+
+
+def _spread_in_crop(det: KeypointDetection) -> float:
+    return max(_pairs(det.keypoints_px)) / det.roi[2]
+
+
 def test_range_out_of_bounds_is_refused():
     det = drone_detection()
     pose = PoseEstimator(CAMERA, SPEC).estimate(det.keypoints_px)
@@ -76,5 +113,7 @@ def test_range_out_of_bounds_is_refused():
 def test_bad_config_names_the_field():
     with pytest.raises(ValueError, match="spread_in_crop"):
         PlausibilityConfig(spread_in_crop=(0.5, 0.1))
+    with pytest.raises(ValueError, match="small_crop_min_spread"):
+        PlausibilityConfig(small_crop_min_spread=0.5)
     with pytest.raises(ValueError, match="depth_ratio"):
         PlausibilityConfig(depth_ratio=(1.2, 2.0))

@@ -213,6 +213,24 @@ def test_tentative_track_without_enough_hits_is_dropped():
     assert tracker.track_ids == []
 
 
+def test_confirmation_needs_every_confirming_hit_to_be_sure_not_only_their_mean():
+    """Clutter the network half believes in (one hit at 0.7 among 0.95s: mean 0.9) is never
+    confirmed; the same track with every hit sure (a drone: 1.0) is, at its third hit."""
+
+    def statuses(presences):
+        tracker = Tracker(TrackerConfig(confirm_hits=3, confirm_window=5))
+        m = measurement(seen_from_below(0.0), [0.0, 0.0, 6.0])
+        return [tracker.update(t_ns(k), [m], scores=[p])[0].status for k, p in enumerate(presences)]
+
+    clutter = statuses([0.95, 0.7, 0.95, 0.95, 0.95, 0.95])
+    assert TrackStatus.CONFIRMED not in clutter and clutter[-1] is TrackStatus.TENTATIVE
+    assert statuses([1.0] * 5)[2] is TrackStatus.CONFIRMED
+    loose = Tracker(TrackerConfig(confirm_min_presence=0.5))
+    m = measurement(seen_from_below(0.0), [0.0, 0.0, 6.0])
+    tracks = [loose.update(t_ns(k), [m], scores=[p]) for k, p in enumerate([0.95, 0.7, 0.95])]
+    assert tracks[-1][0].status is TrackStatus.CONFIRMED
+
+
 # ---------------------------------------------------------------------- gating and association
 def test_gating_rejects_an_outlier():
     tracker = Tracker(TrackerConfig(max_tracks=1))

@@ -6,6 +6,7 @@ scored: ``scoring``; the pooled figures: ``summary``; the table and JSON: ``repo
 
 from __future__ import annotations
 
+import fnmatch
 import sys
 import time
 from collections.abc import Sequence
@@ -55,6 +56,7 @@ def run_robustness(
     height: int = 1080,
     mirror_average: bool = True,
     progress: bool = False,
+    select: Sequence[str] | None = None,
 ) -> RobustnessReport:
     """Render the matrix (reusing what ``out_dir`` holds), run the pipeline and score it.
 
@@ -70,6 +72,9 @@ def run_robustness(
         (``plan_matrix``).
     mirror_average : passed to the pipeline (the daemon's default).
     progress : tqdm bars on stderr while rendering and evaluating.
+    select : glob patterns on the sequence names (``s6501-seq11-nodrone-sky``, ...); only the
+        sequences matching one of them are rendered and scored, each with the seeds it has in the
+        whole matrix (e.g. ``["*nodrone*"]``: the drone-free part alone). None: every sequence.
 
     Returns
     -------
@@ -78,7 +83,8 @@ def run_robustness(
     Raises
     ------
     ValueError
-        A bad argument (named with its value, see ``plan_matrix`` and ``check_seeds``), a model
+        A bad argument (named with its value, see ``plan_matrix`` and ``check_seeds``), ``select``
+        matching no sequence, a model
         without DroneKey metadata, or ``out_dir`` that is a file.
     FileNotFoundError
         The model file is missing.
@@ -102,6 +108,11 @@ def run_robustness(
         raise ValueError(f"out_dir must be a folder, got the file {str(out_dir)!r}")
     model = KeypointModel(model_path)  # a bad model fails now, not after the renders
     entries = [e for plan in plans.values() for e in plan]
+    if select is not None:
+        patterns = list(select)
+        entries = [e for e in entries if any(fnmatch.fnmatchcase(e.name, p) for p in patterns)]
+        if not entries:
+            raise ValueError(f"select {patterns} matches no sequence of the matrix")
     settings = {
         "seed_set": "tuning" if tuning else "reporting",
         "seeds": bases,
@@ -113,6 +124,7 @@ def run_robustness(
         "motions": list(motions),
         "far_range_scale": far_range_scale,
         "drone_free_sequences": int(drone_free),
+        "select": None if select is None else list(select),
         "model": str(model.path),
         "model_has_heading_head": bool(model.has_heading),
         "mirror_average": bool(mirror_average),
