@@ -77,7 +77,6 @@ def test_clutter_that_shrinks_when_recut_around_it_is_refused():
     # The pattern of a building corner read as a drone (tuning seeds): the crop was cut for the
     # "drone" the network found, and in it the network finds one a third the crop's side across.
     det = drone_detection(t=(0.3, -0.4, 5.0))
-    x0, y0, side = det.roi
     centre = det.keypoints_px.mean(axis=0)
     shrunk = centre + (det.keypoints_px - centre) * 0.32 / _spread_in_crop(det)
     reason = check_detection(KeypointDetection(shrunk, 0.9, det.roi), CAMERA.size)
