@@ -29,9 +29,11 @@ from dronekey.sim_replay.io.coco_pose import ROTATION_ENCODINGS, TRANSLATION_UNI
 from dronekey.sim_replay.io.frames import FrameSourceError, iter_frames
 from dronekey.sim_replay.io.h264_video import default_bitrate_bps
 from dronekey.sim_replay.io.render_output import VIDEO_CODECS, write_sequence
+from dronekey.sim_replay.io.rig_output import write_rig
 from dronekey.sim_replay.io.sequence_reader import load_sequence
 from dronekey.sim_replay.io.validation import SequenceFormatError
 from dronekey.sim_replay.presets import PRESETS
+from dronekey.sim_replay.scene import DEFAULT_DRONES, MAX_CAMERAS, MAX_DRONES, build_scene
 from dronekey.sim_replay.synthetic_sequence import BACKGROUND_KINDS, build_sequence
 
 __all__ = ["main"]
@@ -112,6 +114,8 @@ def build_parser() -> argparse.ArgumentParser:
             "  dronekey-sim --preset seq12 --out eval --style-seed 3 --leds off --range-scale 2.5\n"
             "  dronekey-sim --preset seq13 --out eval --flight coordinated --background photos\n"
             "  dronekey-sim --preset seq11 --out negatives --no-drone --background urban\n"
+            "  dronekey-sim --preset swarm --drones 3 --out swarm --frames 150\n"
+            "  dronekey-sim --preset far --cameras 2 --out far2   # far2/cam0/, far2/cam1/, far2/site.json\n"
             "  dronekey-sim --verify out/seq13.json\n"
             "  dronekey-sim --verify 3DronePose/seq13.json --media 3DronePose/images --calib camera.yaml\n"
             "\n"
@@ -153,6 +157,22 @@ def build_parser() -> argparse.ArgumentParser:
     )
     render.add_argument(
         "--images", action="store_true", help="write OUT/<preset>/NNNNNN.png instead of a video"
+    )
+    render.add_argument(
+        "--drones",
+        metavar="N",
+        type=_positive_int,
+        help=f"drones of the swarm preset (1-{MAX_DRONES}, default {DEFAULT_DRONES}): crossing paths, one "
+        "passing in front of another, Mini 2 and Air 2S at 4-14 m; each has its instance_id in the JSON",
+    )
+    render.add_argument(
+        "--cameras",
+        metavar="N",
+        type=_positive_int,
+        default=1,
+        help=f"cameras watching the same flight (1-{MAX_CAMERAS}, default 1): with N >= 2, "
+        "OUT/cam0/ .. OUT/cam<N-1>/ (each as a single-camera render) and OUT/site.json, the cameras' "
+        "poses 5-50 m apart (docs/design.md §5.4)",
     )
     render.add_argument(
         "--codec",
@@ -295,6 +315,8 @@ def _render(args: argparse.Namespace) -> int:
         raise UsageError("--out DIR is required with --preset")
     width, height = _size(args)
     codec = _video_codec(args, width, height)
+    if PRESETS[args.preset].multi_drone or args.cameras > 1 or args.drones is not None:
+        return _render_scene(args, width, height, codec)
     try:
         seq = build_sequence(
             args.preset,
@@ -345,6 +367,61 @@ def _render(args: argparse.Namespace) -> int:
     return 0
 
 
+def _render_scene(args: argparse.Namespace, width: int, height: int, codec: str) -> int:
+    """The swarm preset, or any preset seen by several cameras (``sim_replay.scene``)."""
+    if args.no_drone:
+        raise UsageError(
+            "--no-drone renders one camera of a single-drone preset; not with --cameras or swarm"
+        )
+    try:
+        scene = build_scene(
+            args.preset,
+            seed=args.seed,
+            frames=args.frames,
+            width=width,
+            height=height,
+            backgrounds=args.backgrounds,
+            style_seed=args.style_seed,
+            leds=args.leds,
+            flight=args.flight,
+            background=args.background,
+            range_scale=args.range_scale,
+            drones=args.drones,
+            cameras=args.cameras,
+        )
+    except (ValueError, OSError, ImportError) as exc:
+        message = str(exc).replace("drones must", "--drones must").replace("cameras must", "--cameras must")
+        message = message.replace("drones applies", "--drones applies")
+        raise UsageError(_cli_message(message)) from None
+    _check_output_folder(args.out)
+    first = scene.views[0]
+    total = first.n_frames * len(scene.views)
+    with tqdm(total=total, unit="frame", desc=first.name, disable=None, leave=False) as bar:
+        try:
+            if args.cameras == 1:
+                written, site_path = (
+                    [write_sequence(first, args.out, images=args.images, on_frame=bar.update)],
+                    None,
+                )
+            else:
+                written, site_path = write_rig(
+                    scene.views, scene.site, args.out, images=args.images, on_frame=bar.update
+                )
+        except OSError as exc:
+            print(f"{PROG}: error: {exc}", file=sys.stderr)
+            return EXIT_WRITE_FAILED
+    for camera, w in zip(scene.site.cameras, written, strict=False):
+        print(
+            f"wrote {w.n_frames} frames ({w.n_annotated} annotated) of {first.name} with "
+            f"{len(first.drones)} drone(s) at {width}x{height}, {w.frames_per_second:.1f} frames/s"
+            + (f" [{camera.id}]" if site_path else "")
+            + f": {w.media_path}, {w.json_path}, {w.camera_path}"
+        )
+    if site_path is not None:
+        print(f"wrote {site_path} ({len(scene.site.cameras)} cameras)")
+    return 0
+
+
 def _verify(args: argparse.Namespace) -> int:
     encoding = CocoPoseEncoding(rotation=args.rotation_encoding, translation_unit=args.translation_unit)
     seq = load_sequence(args.verify, camera=args.calib, drone=args.drone, pose_encoding=encoding)
@@ -354,11 +431,11 @@ def _verify(args: argparse.Namespace) -> int:
     with tqdm(total=len(seq.frames), unit="frame", desc=seq.name, disable=None, leave=False) as bar:
         for frame in iter_frames(seq, source):
             n_frames += 1
-            drone = frame.record.drone
-            if drone is not None:
-                n_annotated += 1
+            n_annotated += frame.record.drone is not None
+            for drone in frame.record.drones:  # each with its own instance's hubs
                 if drone.has_pose:
-                    projected = seq.camera.project_body(seq.keypoints_3d, drone.rotation, drone.translation)
+                    hubs = seq.instance(drone.instance_id).keypoints_3d
+                    projected = seq.camera.project_body(hubs, drone.rotation, drone.translation)
                     labelled = drone.visibility > 0
                     error = np.linalg.norm(projected[labelled] - drone.keypoints_px[labelled], axis=1)
                     worst_px = max(worst_px, float(error.max(initial=0.0)))
@@ -371,7 +448,13 @@ def _verify(args: argparse.Namespace) -> int:
     width, height = seq.camera.size
     print(
         f"{args.verify}: {n_frames} frames ({n_annotated} annotated) of {width}x{height} read and checked; "
-        f"drone {seq.drone_model}; {pose}"
+        + (
+            f"{len(seq.instance_ids())} drones "
+            f"({', '.join(f'{i}: {seq.instance(i).model}' for i in seq.instance_ids())}); "
+            if seq.is_multi_drone
+            else f"drone {seq.drone_model}; "
+        )
+        + pose
     )
     return 0
 

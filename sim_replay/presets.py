@@ -15,6 +15,10 @@ Presets (30 fps, 1920x1080, DJI Mini 2 unless noted):
   with pitch and roll oscillations.
 - ``2dronekey``: 1000 frames, rotation-heavy, translation nearly fixed (the paper's keypoint
   training sequences): the drone hovers while tumbling through wide attitudes.
+- ``far``: 300 frames, a DJI Air 2S approaching from 145 m to 22 m, weaving, seen through a long
+  lens (12 deg horizontal field of view): about 30 px across at the start, 200 px at the end.
+- ``swarm``: 300 frames, several drones at once (``sim_replay.swarm``: crossing paths, one drone
+  passing in front of another, Mini 2 and Air 2S at 4-14 m); rendered by ``sim_replay.scene``.
 """
 
 from __future__ import annotations
@@ -26,10 +30,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from dronekey.geometry.camera import CameraModel
+from dronekey.sim_replay.swarm import SWARM_PITCH_DEG, swarm_plans
 
-__all__ = ["DISTORTION", "HFOV_DEG", "PRESETS", "Preset", "Trajectory", "preset_camera"]
+__all__ = ["DISTORTION", "FAR_HFOV_DEG", "HFOV_DEG", "PRESETS", "Preset", "Trajectory", "preset_camera"]
 
 HFOV_DEG = 70.0
+FAR_HFOV_DEG = 12.0
 DISTORTION = (-0.06, 0.015, 0.0, 0.0, 0.0)
 
 # A trajectory maps (time s, offsets drawn from the seed) to (p_ned (3,), (yaw, pitch, roll) deg).
@@ -38,7 +44,12 @@ Trajectory = Callable[[float, np.ndarray], tuple[np.ndarray, tuple[float, float,
 
 @dataclass(frozen=True)
 class Preset:
-    """One scripted sequence."""
+    """One scripted sequence.
+
+    ``hfov_deg``: the camera's horizontal field of view. ``multi_drone``: the preset flies several
+    drones (``sim_replay.swarm``; ``trajectory`` is then its first drone's path for reference and
+    ``sim_replay.scene.build_scene`` renders it).
+    """
 
     name: str
     frames: int
@@ -48,6 +59,8 @@ class Preset:
     default_seed: int
     description: str
     trajectory: Trajectory
+    hfov_deg: float = HFOV_DEG
+    multi_drone: bool = False
 
 
 def _seq11(t: float, o: np.ndarray) -> tuple[np.ndarray, tuple[float, float, float]]:
@@ -94,6 +107,27 @@ def _2dronekey(t: float, o: np.ndarray) -> tuple[np.ndarray, tuple[float, float,
     return p, (yaw, pitch, roll)
 
 
+def _far(t: float, o: np.ndarray) -> tuple[np.ndarray, tuple[float, float, float]]:
+    s = t / (300 / 30.0)  # 0 -> 1 over the sequence
+    r = 145.0 + (22.0 - 145.0) * s + 3.0 * o[0]
+    azimuth = math.radians(1.2 * math.sin(2 * math.pi * 0.23 * t + o[1]) + 0.5 * o[2])
+    elevation = math.radians(6.0 + 0.8 * math.sin(2 * math.pi * 0.17 * t + o[3]) + 0.3 * o[4])
+    p = r * np.array(
+        [
+            math.cos(elevation) * math.cos(azimuth),
+            math.cos(elevation) * math.sin(azimuth),
+            -math.sin(elevation),
+        ]
+    )
+    yaw = 180.0 + 25.0 * math.sin(2 * math.pi * 0.23 * t + o[1]) + 20 * o[6]  # coming at the camera
+    return p, ((yaw + 180.0) % 360.0 - 180.0, -12.0, 8.0 * math.sin(2 * math.pi * 0.23 * t + o[1]))
+
+
+def _swarm_reference(t: float, o: np.ndarray) -> tuple[np.ndarray, tuple[float, float, float]]:
+    """The swarm's first drone at its default seed (``sim_replay.scene`` renders them all)."""
+    return swarm_plans(15, 1)[0].path(t)
+
+
 PRESETS: dict[str, Preset] = {
     p.name: p
     for p in (
@@ -103,10 +137,24 @@ PRESETS: dict[str, Preset] = {
         Preset(
             "2dronekey", 1000, 30.0, "mini2", 32.0, 2, "rotation-heavy, translation nearly fixed", _2dronekey
         ),
+        Preset(
+            "far", 300, 30.0, "air2s", 6.0, 14, "approach from 145 m to 22 m, long lens", _far, FAR_HFOV_DEG
+        ),
+        Preset(
+            "swarm",
+            300,
+            30.0,
+            "mini2",
+            SWARM_PITCH_DEG,
+            15,
+            "several drones crossing, one passing in front of another",
+            _swarm_reference,
+            multi_drone=True,
+        ),
     )
 }
 
 
-def preset_camera(width: int = 1920, height: int = 1080) -> CameraModel:
-    """The simulated camera: 70 deg horizontal field of view, mild barrel distortion."""
-    return CameraModel.from_fov(width, height, HFOV_DEG, dist=np.array(DISTORTION))
+def preset_camera(width: int = 1920, height: int = 1080, hfov_deg: float = HFOV_DEG) -> CameraModel:
+    """The simulated camera: 70 deg horizontal field of view (a preset's own), mild barrel distortion."""
+    return CameraModel.from_fov(width, height, hfov_deg, dist=np.array(DISTORTION))

@@ -343,6 +343,11 @@ def build_sequence(
     if preset not in PRESETS:
         raise ValueError(f"unknown preset {preset!r}; available: {', '.join(PRESETS)}")
     p = PRESETS[preset]
+    if p.multi_drone:
+        raise ValueError(
+            f"preset {preset!r} flies several drones; render it with sim_replay.scene.build_scene "
+            "(dronekey-sim does)"
+        )
     frames = p.frames if frames is None else int(frames)
     if frames <= 0:
         raise ValueError(f"frames must be positive, got {frames}")
@@ -359,5 +364,5 @@ def build_sequence(
     )
     source = _background_source(conditions.background, backgrounds)
     return SyntheticSequence(
-        p, seed, frames, preset_camera(width, height), load_spec(p.drone), source, conditions
+        p, seed, frames, preset_camera(width, height, p.hfov_deg), load_spec(p.drone), source, conditions
     )

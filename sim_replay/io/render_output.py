@@ -291,6 +291,7 @@ def write_sequence(
             info=dict(seq.info),
             keypoint_names=tuple(seq.spec.keypoint_names),
             base_dir=out_dir,
+            instances=tuple(getattr(seq, "instances", ())),  # several drones: the JSON's instances table
         )
         tmp_json.write_text(dumps_sequence(annotations), encoding="utf-8")
         seq.camera.save_yaml(tmp_camera)

@@ -2,7 +2,7 @@
 
 Only what the readers use is checked; any other key is ignored (``info`` is kept whole, key order
 included). Validation stops at the first problem in document order (``info``, ``camera``,
-``drone``, ``categories``, ``images``, ``annotations``; list items in order), reported as a
+``drone``, ``instances``, ``categories``, ``images``, ``annotations``; list items in order), reported as a
 ``validation.SequenceFormatError`` naming the file, the key path and the value.
 """
 
@@ -54,6 +54,7 @@ __all__ = [
     "Category",
     "DroneObject",
     "ImageEntry",
+    "InstanceObject",
     "KeypointTriples",
     "Keypoints3d",
     "SequenceDocument",
@@ -136,6 +137,14 @@ class DroneObject(ReaderModel):
     keypoints_3d: Keypoints3d
 
 
+class InstanceObject(ReaderModel):
+    """One entry of ``instances`` (multi-drone files): a drone's instance id, model and hubs."""
+
+    instance_id: FrameIndex
+    model: Text
+    keypoints_3d: Keypoints3d
+
+
 class Category(ReaderModel):
     """One entry of ``categories``: only its keypoint names are read."""
 
@@ -179,9 +188,13 @@ class ImageEntry(ReaderModel):
 
 
 class AnnotationEntry(ReaderModel):
-    """One entry of ``annotations``: the drone in one image, with its 6DoF."""
+    """One entry of ``annotations``: one drone in one image, with its 6DoF.
+
+    ``instance_id`` (absent in single-drone files: 0) tells the drones of a sequence apart.
+    """
 
     image_id: ImageId
+    instance_id: FrameIndex = 0
     keypoints: KeypointTriples  # (4, 3): u, v (pixels), visibility flag
     bbox: Bbox
     rotation: RotationMatrix  # body -> camera
@@ -199,6 +212,7 @@ class SequenceDocument(ReaderModel):
     info: SequenceInfo
     camera: CameraObject | None
     drone: DroneObject | None
+    instances: list[InstanceObject] | None = None
     categories: Categories = Field(default_factory=list)
     images: list[ImageEntry]
     annotations: list[AnnotationEntry]
@@ -211,6 +225,16 @@ class SequenceDocument(ReaderModel):
         if value is None:
             raise problem(f"must be an object, got {describe_value(value)}")
         return handler(value)
+
+    @field_validator("instances")
+    @classmethod
+    def _distinct_instances(cls, instances: list[InstanceObject] | None) -> list[InstanceObject] | None:
+        seen: set[int] = set()
+        for i, instance in enumerate(instances or ()):
+            if instance.instance_id in seen:
+                raise problem(f"instance_id {instance.instance_id} repeats", f"[{i}].instance_id")
+            seen.add(instance.instance_id)
+        return instances
 
     @field_validator("images")
     @classmethod
@@ -236,22 +260,30 @@ class SequenceDocument(ReaderModel):
 
     @field_validator("annotations")
     @classmethod
-    def _one_per_known_image(
+    def _one_per_instance_and_known_image(
         cls, annotations: list[AnnotationEntry], info: ValidationInfo
     ) -> list[AnnotationEntry]:
         if "images" not in info.data:
             return annotations  # the images' own problem is reported
         image_ids = {image.id for image in info.data["images"]}
-        first: dict[int | str, int] = {}
+        listed = info.data.get("instances")
+        instance_ids = None if listed is None else {instance.instance_id for instance in listed}
+        first: dict[tuple[int | str, int], int] = {}
         for i, annotation in enumerate(annotations):
-            image_id = annotation.image_id
+            image_id, instance_id = annotation.image_id, annotation.instance_id
             if image_id not in image_ids:
                 raise problem(f"no image has id {image_id!r}", f"[{i}].image_id")
-            if image_id in first:
+            if instance_ids is not None and instance_id not in instance_ids:
                 raise problem(
-                    f"image {image_id!r} already has annotations[{first[image_id]}]; "
-                    "a DroneKey sequence has at most one drone per image",
+                    f"instance_id {instance_id} is not listed in instances {sorted(instance_ids)}",
+                    f"[{i}].instance_id",
+                )
+            key = (image_id, instance_id)
+            if key in first:
+                raise problem(
+                    f"image {image_id!r} already has annotations[{first[key]}] of instance {instance_id}; "
+                    "a drone appears at most once per image",
                     f"[{i}].image_id",
                 )
-            first[image_id] = i
+            first[key] = i
         return annotations

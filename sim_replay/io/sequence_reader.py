@@ -16,7 +16,7 @@ import numpy as np
 
 from dronekey.geometry.camera import CameraModel
 from dronekey.geometry.drone_spec import load_spec
-from dronekey.sim_replay.annotations import DroneAnnotation, FrameRecord, SequenceAnnotations
+from dronekey.sim_replay.annotations import DroneAnnotation, DroneInstance, FrameRecord, SequenceAnnotations
 from dronekey.sim_replay.io.coco import read_coco
 from dronekey.sim_replay.io.coco_pose import CocoPoseEncoding
 from dronekey.sim_replay.io.sequence_format import AnnotationEntry, SequenceDocument, keypoint_names
@@ -32,6 +32,7 @@ def _drone_annotation(entry: AnnotationEntry) -> DroneAnnotation:
         bbox_xywh=entry.bbox,
         rotation=entry.rotation,
         translation=entry.translation,
+        instance_id=entry.instance_id,
     )
 
 
@@ -44,21 +45,24 @@ def _read_ours(
         camera = document.camera.camera
     if drone is None:
         drone = document.drone.model, document.drone.keypoints_3d
-    by_image = {entry.image_id: entry for entry in document.annotations}
-    frames = []
-    for image in sorted(document.images, key=lambda image: image.frame_index):
-        entry = by_image.get(image.id)
-        drone_annotation = None if entry is None else _drone_annotation(entry)
-        frames.append(
-            FrameRecord(
-                image.frame_index,
-                image.timestamp_ns,
-                image.file_name,
-                image.width,
-                image.height,
-                drone_annotation,
-            )
+    by_image: dict[int | str, list[DroneAnnotation]] = {}
+    for entry in document.annotations:
+        by_image.setdefault(entry.image_id, []).append(_drone_annotation(entry))
+    frames = [
+        FrameRecord.with_drones(
+            image.frame_index,
+            image.timestamp_ns,
+            image.file_name,
+            image.width,
+            image.height,
+            by_image.get(image.id, []),
         )
+        for image in sorted(document.images, key=lambda image: image.frame_index)
+    ]
+    instances = tuple(
+        DroneInstance(i.instance_id, i.model, i.keypoints_3d)
+        for i in sorted(document.instances or (), key=lambda i: i.instance_id)
+    )
     info = document.info.entries
     return SequenceAnnotations(
         name=str(info.get("sequence", path.stem)),
@@ -70,6 +74,7 @@ def _read_ours(
         info=info,
         keypoint_names=keypoint_names(document.categories),
         base_dir=path.parent,
+        instances=instances,
     )
 
 

@@ -37,7 +37,9 @@ def _dump(value: Any) -> str:
     return json.dumps(value, allow_nan=False, default=_json_default, ensure_ascii=False)
 
 
-def _annotation_dict(ann_id: int, image_id: int, drone: DroneAnnotation, frame: int) -> dict:
+def _annotation_dict(
+    ann_id: int, image_id: int, drone: DroneAnnotation, frame: int, with_instance: bool
+) -> dict:
     kp = np.asarray(drone.keypoints_px, dtype=np.float64)
     vis = np.asarray(drone.visibility).astype(int)
     if kp.shape != (N_KEYPOINTS, 2) or vis.shape != (N_KEYPOINTS,):
@@ -50,9 +52,11 @@ def _annotation_dict(ann_id: int, image_id: int, drone: DroneAnnotation, frame: 
     for (u, v), flag in zip(kp.tolist(), vis.tolist(), strict=True):
         flat += [u, v, int(flag)]
     bbox = [float(x) for x in drone.bbox_xywh]
+    instance = {"instance_id": int(drone.instance_id)} if with_instance else {}
     return {
         "id": ann_id,
         "image_id": image_id,
+        **instance,
         "category_id": 1,
         "keypoints": flat,
         "num_keypoints": int(np.count_nonzero(vis > 0)),
@@ -65,10 +69,16 @@ def _annotation_dict(ann_id: int, image_id: int, drone: DroneAnnotation, frame: 
 
 
 def sequence_to_dict(seq: SequenceAnnotations) -> dict:
-    """The §5.1 document of a sequence as plain Python objects (image id = frame index)."""
+    """The §5.1 document of a sequence as plain Python objects (image id = frame index).
+
+    A multi-drone sequence (``seq.instances`` given, or several instance ids) adds the top-level
+    ``instances`` table and each annotation's ``instance_id``; a single-drone one is written as
+    before, without either.
+    """
     info = dict(seq.info)
     info.setdefault("sequence", seq.name)
     info.setdefault("fps", float(seq.fps))
+    multi = bool(seq.instances) or seq.is_multi_drone
     images, annotations = [], []
     for rec in seq.frames:
         images.append(
@@ -81,12 +91,23 @@ def sequence_to_dict(seq: SequenceAnnotations) -> dict:
                 "height": rec.height,
             }
         )
-        if rec.drone is not None:
-            annotations.append(_annotation_dict(len(annotations) + 1, rec.index, rec.drone, rec.index))
+        for drone in rec.drones:
+            annotations.append(_annotation_dict(len(annotations) + 1, rec.index, drone, rec.index, multi))
+    instances = {}
+    if multi:
+        instances["instances"] = [
+            {
+                "instance_id": int(i),
+                "model": seq.instance(i).model,
+                "keypoints_3d": np.asarray(seq.instance(i).keypoints_3d).tolist(),
+            }
+            for i in seq.instance_ids()
+        ]
     return {
         "info": info,
         "camera": seq.camera.to_dict(),
         "drone": {"model": seq.drone_model, "keypoints_3d": np.asarray(seq.keypoints_3d).tolist()},
+        **instances,
         "categories": [
             {"id": 1, "name": "drone", "keypoints": list(seq.keypoint_names), "skeleton": SKELETON}
         ],

@@ -186,7 +186,7 @@ def test_verify_a_real_style_coco_file(tmp_path, capsys):
 def test_list_presets(capsys):
     assert run_cli(["--list-presets"]) == 0
     names = [line.split()[0] for line in capsys.readouterr().out.splitlines()]
-    assert names == ["seq11", "seq12", "seq13", "2dronekey"]
+    assert names == ["seq11", "seq12", "seq13", "2dronekey", "far", "swarm"]
 
 
 # ---------------------------------------------------------------------------------- bad input
