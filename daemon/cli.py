@@ -68,6 +68,12 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="LAT,LON,ALT_M,YAW,PITCH,ROLL",
         help="camera's WGS84 position and mount attitude (degrees, metres above the ellipsoid)",
     )
+    g.add_argument(
+        "--camera-extrinsics",
+        metavar="FILE",
+        help="site file (docs/fleet.md): this camera id's pose in the site frame, the alternative to "
+        "--camera-geo",
+    )
     g.add_argument("--model", metavar="FILE", help="ONNX keypoint model (default: the shipped model)")
     g.add_argument("--drone", metavar="NAME", help="drone spec: mini2 (default), air2s, or a spec YAML")
     g.add_argument(
@@ -150,6 +156,7 @@ _FLAG_KEYS: dict[str, tuple[str, Any]] = {
     "calib": ("camera.calibration", None),
     "camera_id": ("camera.id", None),
     "camera_geo": ("camera.geo", None),
+    "camera_extrinsics": ("camera.extrinsics", None),
     "model": ("model.path", None),
     "drone": ("model.drone", None),
     "realtime": ("source.realtime", None),

@@ -18,7 +18,7 @@ import numpy as np
 
 from dronekey.geometry.rotations import ned_from_camera
 
-__all__ = ["CameraGeo", "GeoError"]
+__all__ = ["CameraGeo", "GeoError", "ecef_from_lla", "ecef_from_ned_rotation", "lla_from_ecef"]
 
 _A = 6378137.0  # WGS84 semi-major axis, m
 _F = 1 / 298.257223563
@@ -29,7 +29,8 @@ class GeoError(ValueError):
     """A camera geodetic pose that cannot be used; the message names the bad value."""
 
 
-def _ecef_from_lla(lat_deg: float, lon_deg: float, alt_m: float) -> np.ndarray:
+def ecef_from_lla(lat_deg: float, lon_deg: float, alt_m: float) -> np.ndarray:
+    """WGS84 latitude, longitude (degrees) and height above the ellipsoid (m) -> ECEF (m)."""
     lat, lon = math.radians(lat_deg), math.radians(lon_deg)
     n = _A / math.sqrt(1 - _E2 * math.sin(lat) ** 2)
     return np.array(
@@ -41,7 +42,8 @@ def _ecef_from_lla(lat_deg: float, lon_deg: float, alt_m: float) -> np.ndarray:
     )
 
 
-def _lla_from_ecef(p: np.ndarray) -> tuple[float, float, float]:
+def lla_from_ecef(p: np.ndarray) -> tuple[float, float, float]:
+    """ECEF (m) -> WGS84 (lat_deg, lon_deg, alt_m)."""
     x, y, z = (float(v) for v in p)
     lon = math.atan2(y, x)
     r = math.hypot(x, y)
@@ -55,7 +57,8 @@ def _lla_from_ecef(p: np.ndarray) -> tuple[float, float, float]:
     return math.degrees(lat), math.degrees(lon), alt
 
 
-def _ecef_from_ned(lat_deg: float, lon_deg: float) -> np.ndarray:
+def ecef_from_ned_rotation(lat_deg: float, lon_deg: float) -> np.ndarray:
+    """Rotation from local North-East-Down at (lat, lon) to ECEF axes."""
     lat, lon = math.radians(lat_deg), math.radians(lon_deg)
     sl, cl, so, co = math.sin(lat), math.cos(lat), math.sin(lon), math.cos(lon)
     return np.array([[-sl * co, -so, -cl * co], [-sl * so, co, -cl * so], [cl, 0.0, -sl]])
@@ -104,11 +107,21 @@ class CameraGeo:
         """Rotate a camera-frame vector (position offset or velocity) into local NED."""
         return self.R_ned_cam @ np.asarray(v_cam, dtype=np.float64).reshape(3)
 
+    @property
+    def ecef_m(self) -> np.ndarray:
+        """The camera centre in ECEF, m."""
+        return ecef_from_lla(self.lat_deg, self.lon_deg, self.alt_m)
+
+    @property
+    def R_ecef_cam(self) -> np.ndarray:
+        """Rotation from the camera frame to ECEF axes."""
+        return ecef_from_ned_rotation(self.lat_deg, self.lon_deg) @ self.R_ned_cam
+
     def geodetic(self, p_cam: np.ndarray) -> tuple[float, float, float]:
         """(lat_deg, lon_deg, alt_m) of a camera-frame point in metres."""
         ned = self.ned_from_cam(p_cam)
         ecef = (
-            _ecef_from_lla(self.lat_deg, self.lon_deg, self.alt_m)
-            + _ecef_from_ned(self.lat_deg, self.lon_deg) @ ned
+            ecef_from_lla(self.lat_deg, self.lon_deg, self.alt_m)
+            + ecef_from_ned_rotation(self.lat_deg, self.lon_deg) @ ned
         )
-        return _lla_from_ecef(ecef)
+        return lla_from_ecef(ecef)

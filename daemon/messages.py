@@ -30,6 +30,7 @@ from dronekey.daemon.config.camera import check_camera_id
 from dronekey.types import Track, TrackStatus
 
 if TYPE_CHECKING:
+    from dronekey.daemon.camera_pose import CameraPlacement
     from dronekey.daemon.geo import CameraGeo
     from dronekey.daemon.sinks.base import SinkWorker
     from dronekey.geometry.camera import CameraModel
@@ -381,6 +382,7 @@ def info_message(
     camera: CameraModel,
     model: Mapping[str, Any] | None = None,
     camera_geo: CameraGeo | None = None,
+    placement: CameraPlacement | None = None,
 ) -> dict:
     """The reply of the ``dronekey/<camera_id>/info`` queryable (schema ``info``).
 
@@ -393,6 +395,9 @@ def info_message(
         The keypoint model: ``name``, ``path``, ``sha256`` and anything else worth telling.
     camera_geo : CameraGeo, optional
         The camera's geodetic pose.
+    placement : CameraPlacement, optional
+        The camera's pose as configured (``camera.geo`` or ``camera.extrinsics``): ``camera_pose``
+        gives it in ECEF and, from extrinsics, in the site frame (what ``dronekey-fuse`` reads).
     """
     geo = None
     if camera_geo is not None:
@@ -412,6 +417,7 @@ def info_message(
             "rms_px": _number(camera.rms_px),
         },
         "camera_geo": geo,
+        "camera_pose": placement.to_message() if placement is not None else None,
         "model": _sub_object(model, _MODEL_KEYS, "model", extra_ok=True),
         "schemas": {"track": load_schema("track"), "status": load_schema("status")},
     }

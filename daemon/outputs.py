@@ -44,11 +44,12 @@ def _zenoh(config: DaemonConfig, ctx: OutputContext) -> Sink:
     from dronekey.daemon.messages import info_message
     from dronekey.daemon.sinks.zenoh_sink import ZenohSink
 
-    geo = config.camera.camera_geo()
+    placement = config.camera.placement()
+    geo = placement.geo if placement is not None else None
     return ZenohSink(
         config.zenoh,
         config.camera.id,
-        info=info_message(config.camera.id, ctx.camera, ctx.model_info, geo),
+        info=info_message(config.camera.id, ctx.camera, ctx.model_info, geo, placement),
         camera_geo=geo,
     )
 

@@ -1,4 +1,5 @@
-"""The ``camera`` section: the camera's id, its calibration file and its geodetic pose.
+"""The ``camera`` section: the camera's id, its calibration file and its pose (``geo`` on the
+Earth, or ``extrinsics`` in a site frame; ``daemon/camera_pose.py``).
 
 The camera id is a Zenoh key chunk (``dronekey/<id>/tracks``) and part of the MCAP file names, so
 one rule (``CAMERA_ID``) holds wherever an id is taken: here, and in ``check_camera_id`` for the
@@ -9,8 +10,9 @@ from __future__ import annotations
 
 import re
 
-from pydantic import Field, FilePath, field_validator
+from pydantic import Field, FilePath, field_validator, model_validator
 
+from dronekey.daemon.camera_pose import CameraPlacement, ExtrinsicsError, load_extrinsics
 from dronekey.daemon.config.section import Section
 from dronekey.daemon.geo import CameraGeo, GeoError
 
@@ -29,13 +31,18 @@ def check_camera_id(camera_id: str) -> str:
 
 
 class CameraConfig(Section):
-    """Identity, intrinsics and (optional) geodetic pose of the camera."""
+    """Identity, intrinsics and (optional) pose of the camera: ``geo`` or ``extrinsics``, not both."""
 
     id: str = Field("cam0", description="camera id: Zenoh key segment and MCAP frame ids")
     calibration: FilePath | None = Field(
         None, description="OpenCV calibration YAML; null: the file's sidecar, the sim preset's camera"
     )
     geo: str | None = Field(None, description="LAT,LON,ALT_M[,YAW,PITCH,ROLL] (degrees, metres)")
+    extrinsics: FilePath | None = Field(
+        None,
+        description="site file (docs/design.md §5.4) with this camera id's R_site_cam, t_site_cam_m and "
+        "the site's geodetic origin; the alternative to geo",
+    )
 
     @field_validator("id")
     @classmethod
@@ -54,6 +61,30 @@ class CameraConfig(Section):
                 raise ValueError(str(exc)) from None
         return v
 
+    @model_validator(mode="after")
+    def _one_pose(self) -> CameraConfig:
+        if self.geo is not None and self.extrinsics is not None:
+            raise ValueError(
+                f"camera.geo ({self.geo!r}) and camera.extrinsics ({str(self.extrinsics)!r}) both give the "
+                "camera's pose; set one"
+            )
+        if self.extrinsics is not None:
+            try:
+                load_extrinsics(self.extrinsics, self.id)
+            except ExtrinsicsError as exc:
+                raise ValueError(str(exc)) from None
+        return self
+
+    def placement(self) -> CameraPlacement | None:
+        """The camera's pose (on the Earth, and in the site frame with ``extrinsics``), or None."""
+        if self.extrinsics is not None:
+            site = load_extrinsics(self.extrinsics, self.id)
+            return CameraPlacement(site.camera_geo(), site)
+        if self.geo is not None:
+            return CameraPlacement(CameraGeo.parse(self.geo))
+        return None
+
     def camera_geo(self) -> CameraGeo | None:
-        """The parsed geodetic pose, or None when not configured."""
-        return CameraGeo.parse(self.geo) if self.geo is not None else None
+        """The geodetic pose (``geo`` parsed, or derived from ``extrinsics``), or None when neither."""
+        placement = self.placement()
+        return placement.geo if placement is not None else None

@@ -64,12 +64,13 @@ def load_config(path: Path | None, overrides: dict[str, tuple[Any, str]] | None 
         ("sbs1.listen", config.sbs1.listen, "SBS-1"),
         ("cot.url", config.cot.url, "CoT"),
     ):
-        if value is not None and config.camera.geo is None:
+        if value is not None and config.camera.geo is None and config.camera.extrinsics is None:
             flag = overrides.get(dotted, (None, None))[1]
             source = f" (from {flag})" if flag else ""
             raise ConfigError(
                 f"config error: {dotted} = {short_repr(value)}{source}: the {output} output needs "
-                "camera.geo (--camera-geo LAT,LON,ALT_M,YAW,PITCH,ROLL)"
+                "camera.geo (--camera-geo LAT,LON,ALT_M,YAW,PITCH,ROLL) or camera.extrinsics "
+                "(--camera-extrinsics FILE)"
             )
     if config.mcap.dir is None:
         config.mcap.dir = default_mcap_dir()

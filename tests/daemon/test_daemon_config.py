@@ -16,6 +16,7 @@ import paths
 import pytest
 import yaml
 from daemon_media import encode_clip
+from site_files import write_site
 
 from dronekey.daemon.config.daemon_config import DaemonConfig
 from dronekey.daemon.config.errors import ConfigError
@@ -127,6 +128,34 @@ def test_bad_camera_geo_and_zenoh_endpoint():
     joined = "\n".join(error_lines(result.stderr))
     assert "camera.geo = '91,0,10' (from --camera-geo)" in joined and "latitude" in joined
     assert "zenoh.connect" in joined and "tcp/HOST:PORT" in joined
+
+
+def test_camera_extrinsics_give_the_pose_and_its_errors_name_the_file(tmp_path):
+    site = write_site(
+        tmp_path / "site.json", [("cam0", 0.0, 0.0, (0, 0, 2)), ("cam1", 90.0, 0.0, (20, 0, 2))]
+    )
+    config = load_config(None, {"camera.id": ("cam1", "--camera-id"), "camera.extrinsics": (str(site), "-")})
+    placement = config.camera.placement()
+    assert placement.source == "extrinsics" and placement.site.t_site_cam_m.tolist() == [20.0, 0.0, 2.0]
+    assert abs(config.camera.camera_geo().yaw_deg - 90.0) < 1e-3  # the geodetic outputs get it too
+    result = run_cli(
+        "--source", "sim://seq13", "--camera-id", "mast", "--camera-extrinsics", str(site),
+        "--validate-config",
+    )  # fmt: skip
+    assert result.returncode == ExitCode.USAGE
+    (line,) = error_lines(result.stderr)
+    assert str(site) in line and "'mast'" in line and "cam0" in line
+    result = run_cli(
+        "--source", "sim://seq13", "--camera-extrinsics", str(site), "--camera-geo", "47,8,400",
+        "--validate-config",
+    )  # fmt: skip
+    assert result.returncode == ExitCode.USAGE and "set one" in result.stderr
+    (tmp_path / "bad.json").write_text('{"format": "other"}')
+    result = run_cli(
+        "--source", "sim://seq13", "--camera-extrinsics", str(tmp_path / "bad.json"), "--validate-config"
+    )
+    assert result.returncode == ExitCode.USAGE and "bad.json" in result.stderr
+    assert "Traceback" not in result.stderr
 
 
 # ------------------------------------------------------------------------------------ exhaustion

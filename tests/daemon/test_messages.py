@@ -12,9 +12,11 @@ import numpy as np
 import pytest
 from factories import make_track
 from json_checks import schema_errors, strict_json
+from site_files import ORIGIN, write_site
 
 from dronekey.daemon import messages
-from dronekey.daemon.geo import CameraGeo
+from dronekey.daemon.camera_pose import CameraPlacement, load_extrinsics
+from dronekey.daemon.geo import CameraGeo, ecef_from_lla, lla_from_ecef
 from dronekey.daemon.sinks.base import FrameUpdate, Sink, SinkWorker
 from dronekey.daemon.sources import CaptureStats, SourceState
 from dronekey.daemon.status import PipelineCounters, status_figures, status_summary
@@ -276,3 +278,47 @@ def test_info_message_validates_and_carries_the_schemas():
     assert decoded["schemas"]["track"]["title"] == "dronekey.Track"
     assert decoded["key_expressions"]["info"] == "dronekey/cam0/info"
     assert decoded["version"]
+
+
+def test_info_message_publishes_the_camera_pose_from_extrinsics(tmp_path):
+    """The pose from a site file, in ECEF and in the site frame; the derived geodetic pose puts a
+    camera-frame point where the site frame does."""
+    site = write_site(tmp_path / "site.json", [("east", 80.0, 5.0, (30.0, -4.0, 2.5))])
+    placement = load_extrinsics(site, "east")
+    camera = CameraModel.from_fov(1920, 1080, 70.0)
+    assert messages.info_message("east", camera)["camera_pose"] is None
+    full = CameraPlacement(placement.camera_geo(), placement)
+    info = strict_json(
+        messages.to_json_bytes(messages.info_message("east", camera, camera_geo=full.geo, placement=full))
+    )
+    assert schema_errors(info, messages.load_schema("info")) == []
+    pose = info["camera_pose"]
+    assert pose["source"] == "extrinsics" and pose["site"]["origin"] == ORIGIN
+    np.testing.assert_allclose(pose["site"]["t_site_cam_m"], [30.0, -4.0, 2.5])
+    assert (
+        abs(info["camera_geo"]["yaw_deg"] - 80.0) < 1e-3 and abs(info["camera_geo"]["pitch_deg"] - 5.0) < 1e-3
+    )
+    p_cam = np.array([3.0, -1.0, 120.0])
+    R, t = np.array(pose["ecef"]["R_ecef_cam"]), np.array(pose["ecef"]["position_m"])
+    lat, lon, alt = lla_from_ecef(R @ p_cam + t)
+    site_lla = lla_from_ecef(
+        ecef_from_lla(ORIGIN["lat"], ORIGIN["lon"], ORIGIN["alt_m"])
+        + placement.R_ecef_site @ (placement.R_site_cam @ p_cam + placement.t_site_cam_m)
+    )
+    geo_lla = full.geo.geodetic(p_cam)
+    np.testing.assert_allclose((lat, lon), site_lla[:2], atol=1e-9)
+    np.testing.assert_allclose((lat, lon), geo_lla[:2], atol=1e-9)
+    assert abs(alt - site_lla[2]) < 1e-4 and abs(alt - geo_lla[2]) < 1e-4
+
+
+def test_info_message_publishes_the_camera_pose_from_geo():
+    geo = CameraGeo(47.0, 8.0, 500.0, 90.0, 0.0, 0.0)
+    camera = CameraModel.from_fov(640, 480, 60.0)
+    info = messages.info_message("cam0", camera, camera_geo=geo, placement=CameraPlacement(geo))
+    decoded = strict_json(messages.to_json_bytes(info))
+    assert schema_errors(decoded, messages.load_schema("info")) == []
+    assert decoded["camera_pose"]["source"] == "geo" and decoded["camera_pose"]["site"] is None
+    # optical axis east: camera z in ECEF is the local east
+    R = np.array(decoded["camera_pose"]["ecef"]["R_ecef_cam"])
+    east = np.array([-np.sin(np.radians(8.0)), np.cos(np.radians(8.0)), 0.0])
+    np.testing.assert_allclose(R[:, 2], east, atol=1e-9)
