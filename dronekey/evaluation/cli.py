@@ -4,6 +4,7 @@
     dronekey-eval pose --sequence DIR/seq13.json [--video FILE] [--model FILE] [--plot FILE.png] [--json]
     dronekey-eval pose --all DIR [--json]            # seq11-13 in DIR, the paper's Tab. VI
     dronekey-eval pose ... --oracle-noise PX         # ground-truth keypoints + noise: PnP and filter only
+    dronekey-eval mot --sequence DIR/swarm.json [--gate M] [--json]   # MOTA, IDF1, ID switches
     dronekey-eval robustness --out DIR [--json] [--frames N] [--seeds N ...] [--tuning] [--quick]
                                                      # LEDs x backgrounds x motions, far drones, drone-free
 
@@ -20,6 +21,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from dronekey.evaluation.keypoints import evaluate_keypoints
+from dronekey.evaluation.mot import DEFAULT_GATE_M, evaluate_mot, mot_table
 from dronekey.evaluation.pose import evaluate_sequence, table_vi, weighted_average
 from dronekey.evaluation.pose_plot import plot_sequence
 from dronekey.evaluation.robustness.matrix import (
@@ -50,6 +52,8 @@ def _cmd_keypoints(args: argparse.Namespace) -> int:
         raise _UsageError(f"unknown preset {args.preset!r}; available: {', '.join(PRESETS)}")
     if args.frames <= 0:
         raise _UsageError(f"--frames must be positive, got {args.frames}")
+    if PRESETS[args.preset].multi_drone:
+        raise _UsageError(f"keypoints scores one drone per frame; preset {args.preset!r} flies several")
     result = evaluate_keypoints(
         args.preset,
         args.frames,
@@ -104,6 +108,7 @@ def _cmd_pose(args: argparse.Namespace) -> int:
     results = []
     for path in paths:
         seq, frames = _load(path, args.video if args.sequence else None)
+        seq.require_single_drone("dronekey-eval pose")
         res = evaluate_sequence(
             seq,
             frames,
@@ -139,6 +144,22 @@ def _cmd_pose(args: argparse.Namespace) -> int:
         print(json.dumps({"sequences": [r.to_dict() for r in results], "average": avg}))
     else:
         print(table_vi(results))
+    return 0
+
+
+def _cmd_mot(args: argparse.Namespace) -> int:
+    if not args.gate > 0:
+        raise _UsageError(f"--gate must be a positive distance in metres, got {args.gate}")
+    seq, frames = _load(Path(args.sequence), args.video)
+    result = evaluate_mot(
+        seq,
+        frames,
+        args.model,
+        gate_m=args.gate,
+        progress=sys.stderr.isatty(),
+        mirror_average=not args.no_mirror_average,
+    )
+    print(json.dumps(result.to_dict()) if args.json else mot_table(result))
     return 0
 
 
@@ -266,6 +287,29 @@ def build_parser() -> argparse.ArgumentParser:
     )
     q.add_argument("--json", action="store_true", help="print one JSON object")
     q.set_defaults(func=_cmd_pose)
+    m = sub.add_parser(
+        "mot",
+        help="CLEAR-MOT and identity metrics (motmetrics) on a sequence with one or more drones",
+        description="Run the daemon's pipeline over a sequence (dronekey-sim --preset swarm writes one) "
+        "and match its published tracks with the ground-truth drones on 3D distance in the camera "
+        "frame: MOTA, MOTP (m), IDF1, ID switches, FP, FN, mostly tracked / lost, and per drone the "
+        "Tab. VI errors over its matched frames (docs/evaluation.md).",
+    )
+    m.add_argument("--sequence", required=True, help="sequence JSON (docs/design.md §5.1)")
+    m.add_argument("--video", help="video or image folder (default: from the JSON's file names)")
+    m.add_argument("--model", default=None, help="ONNX model (default: the shipped one)")
+    m.add_argument(
+        "--gate",
+        type=float,
+        default=DEFAULT_GATE_M,
+        metavar="M",
+        help=f"a track matches a drone only within this 3D distance, metres (default {DEFAULT_GATE_M:g})",
+    )
+    m.add_argument(
+        "--no-mirror-average", action="store_true", help="run each crop once (the daemon's default averages)"
+    )
+    m.add_argument("--json", action="store_true", help="print one JSON object")
+    m.set_defaults(func=_cmd_mot)
     r = sub.add_parser(
         "robustness",
         help="the pipeline under LED, background, motion and range changes, and on drone-free sequences",

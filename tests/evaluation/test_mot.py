@@ -1,0 +1,55 @@
+"""dronekey-eval mot: the pipeline over a rendered swarm, scored with motmetrics on 3D distance."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from dronekey.evaluation.cli import main as eval_main
+from dronekey.sim_replay.cli import main as sim_main
+
+
+@pytest.fixture(scope="module")
+def swarm_json(tmp_path_factory):
+    out = tmp_path_factory.mktemp("swarm")
+    assert (
+        sim_main(
+            ["--preset", "swarm", "--frames", "12", "--width", "640", "--height", "360", "--out", str(out)]
+        )
+        == 0
+    )
+    return out / "swarm.json"
+
+
+def test_mot_json_reports_clear_mot_identity_and_per_drone(swarm_json, capsys):
+    assert eval_main(["mot", "--sequence", str(swarm_json), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["frames"] == 12 and out["drones"] == 3 and out["gate_m"] == 1.0
+    for key in (
+        "mota",
+        "motp",
+        "idf1",
+        "id_switches",
+        "false_positives",
+        "false_negatives",
+        "mostly_tracked",
+    ):
+        assert key in out
+    assert out["gt_boxes"] == out["false_negatives"] + sum(d["frames"] for d in out["per_drone"])
+    assert [d["instance_id"] for d in out["per_drone"]] == [0, 1, 2]
+    assert out["mota"] <= 1.0 and 0.0 <= out["idf1"] <= 1.0
+
+
+def test_mot_table_and_bad_gate(swarm_json, capsys):
+    assert eval_main(["mot", "--sequence", str(swarm_json), "--gate", "0.5"]) == 0
+    text = capsys.readouterr().out
+    assert "MOTA" in text and "IDF1" in text and "3D gate 0.5 m" in text
+    assert eval_main(["mot", "--sequence", str(swarm_json), "--gate", "0"]) == 2
+    assert "--gate must be a positive distance" in capsys.readouterr().err
+
+
+def test_pose_refuses_a_multi_drone_file_in_one_line(swarm_json, capsys):
+    assert eval_main(["pose", "--sequence", str(swarm_json)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "has 3 drones" in err and "dronekey-eval mot" in err
