@@ -136,6 +136,12 @@ def build_parser() -> argparse.ArgumentParser:
     mcap = g.add_mutually_exclusive_group()
     mcap.add_argument("--mcap-dir", metavar="DIR", help="folder of the MCAP files")
     mcap.add_argument("--no-mcap", action="store_const", const=True, help="no MCAP log")
+    g.add_argument(
+        "--foxglove-ws",
+        metavar="[HOST:]PORT",
+        help="serve the MCAP log's channels live to Foxglove (Open connection > Foxglove WebSocket) on "
+        "127.0.0.1:PORT, or on HOST (0.0.0.0: the network); works with --no-mcap too (default off)",
+    )
     g = p.add_argument_group("checks and logging")
     g.add_argument(
         "--validate-config",
@@ -181,6 +187,7 @@ _FLAG_KEYS: dict[str, tuple[str, Any]] = {
     "cot_ca": ("cot.tls.root_ca", None),
     "mcap_dir": ("mcap.dir", None),
     "no_mcap": ("mcap.enabled", lambda v: not v),
+    "foxglove_ws": ("foxglove_ws.listen", None),
     "log_level": ("log.level", None),
 }
 

@@ -70,7 +70,21 @@ def _mavlink(config: DaemonConfig, ctx: OutputContext) -> Sink:
 def _mcap(config: DaemonConfig, ctx: OutputContext) -> Sink:
     from dronekey.daemon.sinks.mcap.sink import McapSink
 
-    return McapSink(config.mcap, ctx.camera, config.camera.id, camera_geo=config.camera.camera_geo())
+    geo = config.camera.camera_geo()
+    live = None
+    if config.foxglove_ws.listen is not None:
+        from dronekey.daemon.sinks.foxglove_ws import FoxgloveLiveServer
+        from dronekey.daemon.sinks.mcap.channels import channel_specs
+
+        host, port = config.foxglove_ws.address()
+        specs = channel_specs(with_geo=geo is not None)
+        live = FoxgloveLiveServer(host, port, specs, message_backlog=config.foxglove_ws.message_backlog)
+    try:
+        return McapSink(config.mcap, ctx.camera, config.camera.id, camera_geo=geo, live=live)
+    except BaseException:
+        if live is not None:
+            live.close()
+        raise
 
 
 def _sbs1(config: DaemonConfig, ctx: OutputContext) -> Sink:
@@ -98,7 +112,8 @@ _OUTPUTS: dict[
 ] = {
     "zenoh": (lambda c: c.zenoh.enabled, _zenoh, "--no-zenoh"),
     "mavlink": (lambda c: c.mavlink.enabled, _mavlink, "--no-mavlink"),
-    "mcap": (lambda c: c.mcap.enabled, _mcap, "--no-mcap"),
+    # The MCAP sink also feeds the live view: it runs for either (files only with mcap.enabled).
+    "mcap": (lambda c: c.mcap.enabled or c.foxglove_ws.listen is not None, _mcap, "--no-mcap"),
     "sbs1": (lambda c: c.sbs1.listen is not None, _sbs1, "no --sbs1-listen"),
     "sapient": (lambda c: c.sapient.connect is not None, _sapient, "no --sapient"),
     "cot": (lambda c: c.cot.url is not None, _cot, "no --cot"),

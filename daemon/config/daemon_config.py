@@ -8,6 +8,7 @@ from pydantic import Field, field_validator
 
 from dronekey.daemon.config.camera import CameraConfig
 from dronekey.daemon.config.cot import CotConfig
+from dronekey.daemon.config.foxglove_ws import FoxgloveWsConfig
 from dronekey.daemon.config.mavlink import MavlinkConfig
 from dronekey.daemon.config.mcap import McapConfig
 from dronekey.daemon.config.model import ModelConfig
@@ -55,5 +56,6 @@ class DaemonConfig(Section):
     sapient: SapientConfig = Field(default_factory=SapientConfig)
     cot: CotConfig = Field(default_factory=CotConfig)
     mcap: McapConfig = Field(default_factory=McapConfig)
+    foxglove_ws: FoxgloveWsConfig = Field(default_factory=FoxgloveWsConfig)
     sinks: SinksConfig = Field(default_factory=SinksConfig)
     log: LogConfig = Field(default_factory=LogConfig)
