@@ -61,7 +61,16 @@ class SourceConfig(Section):
     image_fps: float = Field(30.0, gt=0, le=1000, description="frame rate of image folders (timestamps)")
     max_frames: int | None = Field(None, gt=0, description="stop (exit 0) after this many frames")
     decode_threads: int | None = Field(
-        None, ge=1, le=64, description="FFmpeg decoder threads (files, network); null: all cores but one"
+        None,
+        ge=1,
+        le=64,
+        description="FFmpeg decoder threads (files, network); null: PyAV one per 1080p30 of pixel rate, "
+        "OpenCV all cores but one",
+    )
+    decoder: Literal["auto", "pyav", "opencv"] = Field(
+        "auto",
+        description="files and network streams: pyav (FFmpeg through PyAV), opencv (cv2.VideoCapture), or "
+        "auto: PyAV, and OpenCV for a file PyAV cannot open; V4L2 always uses OpenCV",
     )
     v4l2: V4l2Settings = Field(default_factory=V4l2Settings)
     network: NetworkSettings = Field(default_factory=NetworkSettings)

@@ -62,10 +62,13 @@ def make_reader(config: SourceConfig) -> FrameReader:
         return SimReader(preset, config.sim)
     if scheme in NETWORK_SCHEMES:
         from dronekey.daemon.sources.opencv_readers import NetworkStreamReader
+        from dronekey.daemon.sources.pyav_reader import PyAVStreamReader
 
         # The watchdog reports the stall after stall_timeout_s; the read gives up (and the capture
-        # reconnects) after twice that.
-        return NetworkStreamReader(
+        # reconnects) after twice that. PyAV unless source.decoder is opencv: a stream that does not
+        # open is usually down, and trying a second library would double every reconnection wait.
+        stream_reader = NetworkStreamReader if config.decoder == "opencv" else PyAVStreamReader
+        return stream_reader(
             uri,
             config.network,
             read_timeout_s=2 * config.stall_timeout_s,
@@ -85,6 +88,14 @@ def make_reader(config: SourceConfig) -> FrameReader:
         from dronekey.daemon.sources.image_folder import ImageFolderReader
 
         return ImageFolderReader(path, config.image_fps)
+    from dronekey.daemon.sources.fallback import FirstThatOpens
     from dronekey.daemon.sources.opencv_readers import VideoFileReader
+    from dronekey.daemon.sources.pyav_reader import PyAVFileReader
 
-    return VideoFileReader(path, decode_threads=config.decode_threads)
+    if config.decoder == "opencv":
+        return VideoFileReader(path, decode_threads=config.decode_threads)
+    if config.decoder == "pyav":
+        return PyAVFileReader(path, decode_threads=config.decode_threads)
+    return FirstThatOpens(
+        [PyAVFileReader(path, config.decode_threads), VideoFileReader(path, config.decode_threads)]
+    )

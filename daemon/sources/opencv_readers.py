@@ -25,6 +25,7 @@ import numpy as np
 
 from dronekey.daemon.config.source import NetworkSettings, V4l2Settings
 from dronekey.daemon.sources.base import FrameReader, ReadResult, SourceOpenError, valid_bgr
+from dronekey.daemon.sources.file_timeline import FileTimeline
 from dronekey.daemon.sources.sidecar import sidecar_camera
 from dronekey.daemon.sources.truncation import truncation
 from dronekey.geometry.camera import CameraModel
@@ -45,11 +46,6 @@ log = logging.getLogger(__name__)
 _FILE_MAX_CONSECUTIVE_FAILURES = 50
 # A live stream that fails this many reads in a row is lost (one bad packet is a corrupt frame).
 _LIVE_MAX_CONSECUTIVE_FAILURES = 3
-# A file's timestamps that step by k frame intervals (within this share of one) lost k - 1 frames;
-# a step off that grid means a variable frame rate, and gaps are no longer counted.
-_PTS_GRID_TOLERANCE = 0.2
-# A longer jump is a timestamp discontinuity (a concatenated or restarted stream), not lost frames.
-_MAX_COUNTED_GAP_S = 10.0
 
 
 def default_decode_threads() -> int:
@@ -126,11 +122,8 @@ class VideoFileReader(_CaptureReader):
         self.decode_threads = decode_threads or default_decode_threads()
         self.description = str(self.path)
         self._peeked: ReadResult | None = None
-        self._last_t_ns: int | None = None
-        self._warned_pts = False
+        self._timeline = FileTimeline(str(self.path))  # PTS gaps (lost frames), increasing timestamps
         self._warned_truncated = False
-        self._variable_rate = False
-        self._gap = (0, 0)  # (after, before) t_ns of the last counted gap: frames inside it were lost
 
     def open(self) -> None:
         self.close()
@@ -147,8 +140,7 @@ class VideoFileReader(_CaptureReader):
             )
         self._cap = cap
         self._remember_format(cap)
-        self._last_t_ns = None
-        self._gap = (0, 0)
+        self._timeline.reset(self._fps)
         first = self._decode_next()
         if first.bgr is None:
             self.close()
@@ -173,52 +165,13 @@ class VideoFileReader(_CaptureReader):
             ok, img = self._cap.read()
             if ok and valid_bgr(img):
                 t_ns = round(self._cap.get(cv2.CAP_PROP_POS_MSEC) * 1e6)
-                if self._gap[0] < t_ns < self._gap[1]:
-                    # A frame the decoder hands over late, after it resynchronised past the damage
-                    # (a B-frame): out of order, and already counted among the frames of that gap.
-                    continue
+                if self._timeline.in_counted_gap(t_ns):
+                    continue  # a late B-frame after the decoder resynchronised: counted in the gap
                 # Frames that failed to decode are inside the timestamp gap too: count them once.
-                lost = max(failures, self._lost_before(t_ns))
-                return ReadResult(img, self._timestamp_ns(t_ns), corrupt=lost)
+                lost = max(failures, self._timeline.lost_before(t_ns))
+                return ReadResult(img, self._timeline.stamp(t_ns), corrupt=lost)
             failures += 1
         return ReadResult(ended=True)
-
-    def _lost_before(self, t_ns: int) -> int:
-        """Frames missing before the one stamped ``t_ns``, from the gap in a constant-rate file's PTS.
-
-        FFmpeg drops a frame whose MPEG-TS packets are damaged without a decode error: the read
-        just returns the next good frame, and only its timestamp shows what is missing. Timestamps
-        start at 0 (OpenCV counts from the stream's start), so frames lost before the first good one
-        count too.
-        """
-        if not self._fps or self._variable_rate:
-            return 0
-        last = self._last_t_ns if self._last_t_ns is not None else -round(1e9 / self._fps)
-        if t_ns <= last:
-            return 0
-        gap_ns = t_ns - last
-        steps = gap_ns * self._fps / 1e9
-        if abs(steps - round(steps)) > _PTS_GRID_TOLERANCE:
-            self._variable_rate = True
-            log.info("%s: variable frame rate; frames lost in timestamp gaps are not counted", self.path)
-            return 0
-        if gap_ns > _MAX_COUNTED_GAP_S * 1e9:
-            log.warning("%s: timestamps jump by %.1f s; not counted as lost frames", self.path, gap_ns / 1e9)
-            return 0
-        lost = round(steps) - 1
-        if lost:
-            self._gap = (last, t_ns)
-        return lost
-
-    def _timestamp_ns(self, t_ns: int) -> int:
-        if self._last_t_ns is not None and t_ns <= self._last_t_ns:
-            # No usable PTS (some containers): step by the nominal frame interval, and say so once.
-            if not self._warned_pts:
-                log.warning("%s: presentation timestamps do not increase; using the frame rate", self.path)
-                self._warned_pts = True
-            t_ns = self._last_t_ns + round(1e9 / (self._fps or 30.0))
-        self._last_t_ns = t_ns
-        return t_ns
 
     def bundled_camera(self) -> tuple[CameraModel, str] | None:
         return sidecar_camera(self.path)

@@ -232,8 +232,8 @@ def test_live_queue_drops_the_oldest():
 
 
 def test_make_reader_picks_the_reader(tmp_path, media):
-    def reader(uri: str):
-        return make_reader(SourceConfig(uri=uri))
+    def reader(uri: str):  # the OpenCV readers; source.decoder auto/pyav: tests/daemon/test_pyav_reader.py
+        return make_reader(SourceConfig(uri=uri, decoder="opencv"))
 
     assert isinstance(reader("sim://seq13"), SimReader)
     assert isinstance(reader("rtsp://user:secret@cam.local:554/stream"), NetworkStreamReader)
