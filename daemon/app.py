@@ -245,7 +245,10 @@ class DaemonApp:
         self._pipeline = build_pipeline(camera, self.config, self._pipeline_factory)
         self._model_info = self._describe_model(self._pipeline)
         self._resolution = (width, height)
-        ctx = OutputContext(camera, self._model_info, simulated=self._capture.reader.kind == "sim")
+        reader = self._capture.reader
+        ctx = OutputContext(
+            camera, self._model_info, simulated=reader.kind == "sim", frame_rate=reader.frame_rate
+        )
         self._workers = build_outputs(self.config, ctx)
 
     def _describe_model(self, pipeline: Pipeline) -> dict:
@@ -395,9 +398,12 @@ class DaemonApp:
             f"{self._counters.frames} frames processed",
             f"{cs.dropped} dropped",
             f"{cs.corrupt} corrupt",
-            f"{cs.reconnects} reconnects",
             f"{self._counters.errors} pipeline errors",
         ]
+        if self._capture.reader.live:  # failed attempts count: "0 reconnects" alone hid them
+            parts.insert(
+                3, f"source opened {cs.opened} of {cs.open_attempts} attempts, {cs.reconnects} reconnects"
+            )
         for name, worker in self._workers.items():
             p50, p99 = worker.stats.latency_percentiles()
             lat = f", p50 {p50:.1f} / p99 {p99:.1f} ms" if math.isfinite(p99) else ""

@@ -15,7 +15,8 @@ from dronekey.geometry.camera import CalibrationError, CameraModel
 __all__ = ["NO_CALIBRATION_HINT", "camera_at_resolution", "resolve_calibration"]
 
 NO_CALIBRATION_HINT = (
-    "pass --calib FILE (an OpenCV calibration YAML; make one with `dronekey-calib`, see docs/daemon.md), "
+    "pass --calib FILE or set camera.calibration (an OpenCV calibration YAML; make one with "
+    "`dronekey-calib`, see docs/daemon.md), "
     "or put camera.yaml or the sequence JSON beside the video"
 )
 

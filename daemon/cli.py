@@ -14,6 +14,7 @@ from typing import Any
 import dronekey
 from dronekey.daemon.errors import EXIT_CODE_HELP, DaemonError, ExitCode, UsageError
 from dronekey.daemon.logs import detect_log_mode, setup_logging
+from dronekey.daemon.sources import SIM_SOURCES
 
 __all__ = ["build_parser", "main"]
 
@@ -25,7 +26,8 @@ _EPILOG = f"""sources (--source or source.uri):
   /dev/video0 or 0         a V4L2 camera (source.v4l2: width, height, fps, fourcc)
   rtsp:// http:// tcp:// udp://URL
                            a network stream (reconnected with backoff when lost)
-  sim://seq11|seq12|seq13  a simulator preset rendered on the fly (its camera is the calibration)
+  {SIM_SOURCES}
+                           a simulator preset rendered on the fly (its camera is the calibration)
 
 calibration: --calib FILE, else the sequence JSON (same stem) or camera.yaml beside the video,
   else the sim preset's camera; otherwise the daemon stops and says how to make one (dronekey-calib).
@@ -58,7 +60,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--version", action="version", version=f"%(prog)s {dronekey.__version__}")
     g = p.add_argument_group("source and camera")
     g.add_argument(
-        "--source", metavar="SRC", help="video file, image folder, /dev/videoN, stream URL, sim://seqNN"
+        "--source", metavar="SRC", help=f"video file, image folder, /dev/videoN, stream URL, {SIM_SOURCES}"
     )
     g.add_argument("--config", metavar="FILE", type=Path, help="YAML config file (flags override it)")
     g.add_argument("--calib", metavar="FILE", help="OpenCV calibration YAML (default: beside the video)")
@@ -142,6 +144,14 @@ def build_parser() -> argparse.ArgumentParser:
         help="serve the MCAP log's channels live to Foxglove (Open connection > Foxglove WebSocket) on "
         "127.0.0.1:PORT, or on HOST (0.0.0.0: the network); works with --no-mcap too (default off)",
     )
+    g = p.add_argument_group("annotated video")
+    g.add_argument(
+        "--annotated-video",
+        metavar="FILE",
+        help="write every frame with its tracks drawn on it (keypoints 1-4, body axes, id, range, "
+        "heading) as H.264 to FILE (.mp4, .mkv or .mov); frames the encoder cannot keep up with are "
+        "dropped and counted (default off)",
+    )
     g = p.add_argument_group("checks and logging")
     g.add_argument(
         "--validate-config",
@@ -188,6 +198,7 @@ _FLAG_KEYS: dict[str, tuple[str, Any]] = {
     "mcap_dir": ("mcap.dir", None),
     "no_mcap": ("mcap.enabled", lambda v: not v),
     "foxglove_ws": ("foxglove_ws.listen", None),
+    "annotated_video": ("annotated_video.path", None),
     "log_level": ("log.level", None),
 }
 

@@ -33,11 +33,13 @@ class OutputContext:
     camera : intrinsics at the source's resolution.
     model_info : ``name``, ``path``, ``sha256`` and more, for Zenoh's info queryable.
     simulated : True for ``sim://`` sources (ADS-B messages get their SIMULATED flag).
+    frame_rate : the source's frames per second, None when unknown (the annotated video's rate).
     """
 
     camera: CameraModel
     model_info: Mapping[str, Any]
     simulated: bool
+    frame_rate: float | None = None
 
 
 def _zenoh(config: DaemonConfig, ctx: OutputContext) -> Sink:
@@ -106,6 +108,17 @@ def _sapient(config: DaemonConfig, ctx: OutputContext) -> Sink:
     return SapientSink(config.sapient, ctx.camera, config.camera.id, config.camera.camera_geo())
 
 
+def _annotated_video(config: DaemonConfig, ctx: OutputContext) -> Sink:
+    from dronekey.daemon.sinks.annotated_video import AnnotatedVideoSink
+
+    return AnnotatedVideoSink(config.annotated_video, ctx.camera, ctx.frame_rate)
+
+
+# Outputs whose queue holds full frames keep it shorter than sinks.queue_size.
+_QUEUE_SIZES: dict[str, Callable[[DaemonConfig], int]] = {
+    "annotated_video": lambda c: c.annotated_video.queue_frames,
+}
+
 # name -> (enabled?, builder, flag that disables it)
 _OUTPUTS: dict[
     str, tuple[Callable[[DaemonConfig], bool], Callable[[DaemonConfig, OutputContext], Sink], str]
@@ -117,6 +130,11 @@ _OUTPUTS: dict[
     "sbs1": (lambda c: c.sbs1.listen is not None, _sbs1, "no --sbs1-listen"),
     "sapient": (lambda c: c.sapient.connect is not None, _sapient, "no --sapient"),
     "cot": (lambda c: c.cot.url is not None, _cot, "no --cot"),
+    "annotated_video": (
+        lambda c: c.annotated_video.path is not None,
+        _annotated_video,
+        "no --annotated-video",
+    ),
 }
 
 
@@ -139,7 +157,8 @@ def build_outputs(config: DaemonConfig, ctx: OutputContext) -> dict[str, SinkWor
         except Exception:
             close_outputs(workers, timeout_s=2.0)
             raise
-        workers[name] = SinkWorker(sink, max_queue=config.sinks.queue_size)
+        queue_size = _QUEUE_SIZES[name](config) if name in _QUEUE_SIZES else config.sinks.queue_size
+        workers[name] = SinkWorker(sink, max_queue=queue_size)
         log.info("output %s started", name)
     if not workers:
         log.warning("every output is disabled: tracks are shown here and nowhere else")

@@ -146,7 +146,11 @@ def format_track(track: Track, geo: CameraGeo | None = None) -> str:
 def status_summary(
     figures: Mapping, capture: CaptureStats, tracks: tuple[Track, ...], geo: CameraGeo | None = None
 ) -> str:
-    """One line for the terminal, ``STATUS=`` and the journal: fps, source state, tracks, outputs."""
+    """One line for the terminal, ``STATUS=`` and the journal: fps, source state, outputs, tracks.
+
+    The tracks come last: a terminal line cut to its width loses the end of the track list, never
+    the outputs' queue figures.
+    """
     fps = figures["fps"]
     parts = [
         f"{fps:.1f} fps" if fps is not None else "- fps",
@@ -155,13 +159,13 @@ def status_summary(
     ]
     if capture.dropped or capture.corrupt:
         parts.append(f"dropped {capture.dropped} corrupt {capture.corrupt}")
-    parts.append(" ; ".join(format_track(t, geo) for t in tracks) if tracks else "no track")
     for name, sink in figures["sinks"].items():
         faults = sink_faults(sink)
         parts.append(f"{name} q{sink['queue_depth']}" + (f" {faults}" if faults else ""))
     p99 = figures["latency_ms"]["p99"]
     if p99 is not None and math.isfinite(p99):
         parts.append(f"p99 {p99:.0f} ms")
+    parts.append(" ; ".join(format_track(t, geo) for t in tracks) if tracks else "no track")
     return " | ".join(parts)
 
 

@@ -6,6 +6,7 @@ from typing import Any, Literal
 
 from pydantic import Field, field_validator
 
+from dronekey.daemon.config.annotated_video import AnnotatedVideoConfig
 from dronekey.daemon.config.camera import CameraConfig
 from dronekey.daemon.config.cot import CotConfig
 from dronekey.daemon.config.foxglove_ws import FoxgloveWsConfig
@@ -57,5 +58,6 @@ class DaemonConfig(Section):
     cot: CotConfig = Field(default_factory=CotConfig)
     mcap: McapConfig = Field(default_factory=McapConfig)
     foxglove_ws: FoxgloveWsConfig = Field(default_factory=FoxgloveWsConfig)
+    annotated_video: AnnotatedVideoConfig = Field(default_factory=AnnotatedVideoConfig)
     sinks: SinksConfig = Field(default_factory=SinksConfig)
     log: LogConfig = Field(default_factory=LogConfig)

@@ -190,6 +190,7 @@ _PATH_KEYS = (
     "model.path",
     "mavlink.signing_key",
     "mcap.dir",
+    "annotated_video.path",
     "zenoh.tls.root_ca",
     "zenoh.tls.certificate",
     "zenoh.tls.private_key",

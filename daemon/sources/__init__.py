@@ -20,9 +20,11 @@ from dronekey.daemon.sources.base import (
     SourceState,
 )
 from dronekey.daemon.sources.capture import Capture, CaptureStats, FrameQueue
+from dronekey.sim_replay.presets import PRESETS
 
 __all__ = [
     "NETWORK_SCHEMES",
+    "SIM_SOURCES",
     "Capture",
     "CaptureStats",
     "CapturedFrame",
@@ -35,9 +37,10 @@ __all__ = [
 ]
 
 NETWORK_SCHEMES = frozenset({"rtsp", "rtsps", "rtmp", "http", "https", "tcp", "udp", "srt", "rtp"})
+SIM_SOURCES = "sim://" + "|".join(PRESETS)
+"""The simulator presets as ``--help`` and the errors name them: one list, the presets module's."""
 _SOURCE_HELP = (
-    "a video file, an image folder, /dev/videoN (or N), "
-    "rtsp:// http:// tcp:// udp:// URL, or sim://seq11|seq12|seq13"
+    f"a video file, an image folder, /dev/videoN (or N), rtsp:// http:// tcp:// udp:// URL, or {SIM_SOURCES}"
 )
 
 
@@ -58,7 +61,7 @@ def make_reader(config: SourceConfig) -> FrameReader:
 
         preset = uri[len("sim://") :].strip("/")
         if not preset:
-            raise UsageError("source: sim:// needs a preset name, e.g. sim://seq13")
+            raise UsageError(f"source: sim:// needs a preset name: {SIM_SOURCES}")
         return SimReader(preset, config.sim)
     if scheme in NETWORK_SCHEMES:
         from dronekey.daemon.sources.opencv_readers import NetworkStreamReader

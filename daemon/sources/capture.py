@@ -114,6 +114,8 @@ class CaptureStats:
     reconnects: int  # successful reopenings after a loss
     last_error: str | None
     seconds_since_frame: float | None  # None before the first frame
+    open_attempts: int = 0  # live: times the source was (re)opened, failed attempts included
+    opened: int = 0  # live: ... and how many of them succeeded
 
 
 class Capture:
@@ -135,6 +137,8 @@ class Capture:
         self._frames = 0
         self._corrupt = 0
         self._reconnects = 0
+        self._open_attempts = 0
+        self._opened_count = 0
         self._last_error: str | None = None
         self._last_frame_mono: float | None = None
         self._busy_since: float | None = None
@@ -214,6 +218,8 @@ class Capture:
             reconnects=self._reconnects,
             last_error=self._last_error,
             seconds_since_frame=None if last is None else time.monotonic() - last,
+            open_attempts=self._open_attempts,
+            opened=self._opened_count,
         )
 
     def _set_state(self, state: SourceState, detail: str = "") -> None:
@@ -313,6 +319,7 @@ class Capture:
         first = True
         while not self._stop.is_set():
             self._set_state(SourceState.CONNECTING if first else SourceState.RECONNECTING)
+            self._open_attempts += 1
             try:
                 with self._busy():
                     self.reader.open()
@@ -322,6 +329,7 @@ class Capture:
                 if not self._wait_before_retry(failures, str(exc)):
                     return
                 continue
+            self._opened_count += 1
             if not first:
                 self._reconnects += 1
             first = False

@@ -27,6 +27,7 @@ from dronekey.daemon.config.source import NetworkSettings, V4l2Settings
 from dronekey.daemon.sources.base import FrameReader, ReadResult, SourceOpenError, valid_bgr
 from dronekey.daemon.sources.file_timeline import FileTimeline
 from dronekey.daemon.sources.sidecar import sidecar_camera
+from dronekey.daemon.sources.stream_errors import explain_open_failure
 from dronekey.daemon.sources.truncation import truncation
 from dronekey.geometry.camera import CameraModel
 
@@ -205,10 +206,12 @@ class NetworkStreamReader(_CaptureReader):
             cv2.CAP_PROP_N_THREADS,
             self.decode_threads,
         ]
+        started = time.monotonic()
         cap = cv2.VideoCapture(self.url, cv2.CAP_FFMPEG, params)
         if not cap.isOpened():
             cap.release()
-            raise SourceOpenError(f"cannot open stream {self.description}")
+            why = explain_open_failure(self.url, time.monotonic() - started, self._settings.open_timeout_s)
+            raise SourceOpenError(f"cannot open stream {self.description}: {why}")
         self._cap = cap
         self._remember_format(cap)
 

@@ -169,6 +169,7 @@ class MavlinkSink(Sink):
 
         self._state_lock = threading.Lock()  # health, counters
         self._healthy = True
+        self._heartbeat_announced = False
         self._last_alive_ns: int | None = None
         self._latest = LatestTrackMessages()
         self._last_update_ns: int | None = None
@@ -203,10 +204,14 @@ class MavlinkSink(Sink):
     def set_healthy(self, healthy: bool) -> None:
         """Tell the sink whether the pipeline is healthy; heartbeats go out only while it is."""
         with self._state_lock:
-            if bool(healthy) != self._healthy:
-                log.info(
-                    "MAVLink heartbeat %s", "resumes (pipeline healthy)" if healthy else "stops (unhealthy)"
-                )
+            # Said only once a heartbeat went out: before the first frame there is nothing to stop.
+            if bool(healthy) != self._healthy and self._last_alive_ns is not None:
+                if not healthy:
+                    change = "stops (unhealthy)"
+                else:
+                    change = "resumes (pipeline healthy)" if self._heartbeat_announced else "starts"
+                log.info("MAVLink heartbeat %s", change)
+                self._heartbeat_announced = True
             self._healthy = bool(healthy)
             if healthy:
                 self._last_alive_ns = time.monotonic_ns()
