@@ -48,7 +48,7 @@ __all__ = [
     "track_message",
 ]
 
-SCHEMA_NAMES = ("track", "status", "info")
+SCHEMA_NAMES = ("track", "status", "info", "fused_track")
 
 _STATUS_REQUIRED = ("healthy", "uptime_s", "fps", "source")
 _STATUS_OPTIONAL = ("latency_ms", "frames", "model", "tracks_active", "sinks")
@@ -68,7 +68,8 @@ def _schema_text(name: str) -> str:
 
 
 def load_schema(name: str) -> dict:
-    """The JSON schema (draft 2020-12) of the ``track``, ``status`` or ``info`` message (a fresh copy)."""
+    """The JSON schema (draft 2020-12) of the ``track``, ``status``, ``info`` or ``fused_track`` message
+    (a fresh copy)."""
     return json.loads(_schema_text(name))
 
 

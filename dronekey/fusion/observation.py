@@ -103,6 +103,11 @@ def observe(
     cov_site = _floored(pose.covariance_to_site(cov_cam) + growth * np.eye(3), config.min_std_m)
     position = pose.point_to_site(p_cam + v_cam * dt)
     rotation_std = _finite(np.asarray(track.rotation_std_rad, dtype=np.float64).reshape(3), np.pi / 2)
+    q = np.asarray(track.quaternion_wxyz, dtype=np.float64).reshape(4)
+    if np.all(np.isfinite(q)) and np.linalg.norm(q) > 0:
+        R_cam_body = quat_wxyz_to_matrix(q)
+    else:  # no orientation: any, with no weight in the fused orientation
+        R_cam_body, rotation_std = np.eye(3), np.full(3, 1e3)
     heading = float(track.heading_confidence)
     return Observation(
         camera_id=camera_id,
@@ -113,7 +118,7 @@ def observe(
         position_m=position,
         velocity_mps=pose.vector_to_site(v_cam),
         position_cov=cov_site,
-        R_site_body=pose.R_site_cam @ quat_wxyz_to_matrix(track.quaternion_wxyz),
+        R_site_body=pose.R_site_cam @ R_cam_body,
         rotation_var_rad2=max(float(np.mean(rotation_std**2)), 1e-8),
         heading_confidence=heading if np.isfinite(heading) else 0.0,
         camera_centre_m=pose.centre_m,

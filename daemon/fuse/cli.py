@@ -1,0 +1,155 @@
+"""``dronekey-fuse``: fuse the tracks of several ``dronekey-daemon`` cameras (docs/fleet.md).
+
+    dronekey-fuse --zenoh-mode client --zenoh-connect tcp/ROUTER:7447
+    dronekey-fuse --cameras north,east --origin 47.3977,8.5456,488
+
+Exit codes: 0 never (it runs until stopped), 2 bad usage (one line names the flag and value),
+3 the Zenoh session could not be opened, 130 / 143 stopped by SIGINT / SIGTERM.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import threading
+
+import zenoh
+from pydantic import ValidationError
+
+import dronekey
+from dronekey.daemon.config.camera import check_camera_id
+from dronekey.daemon.config.zenoh import ZenohConfig
+from dronekey.daemon.errors import ExitCode
+from dronekey.daemon.fuse.fused_message import FUSED_KEY
+from dronekey.daemon.fuse.local_frame import LocalFrame
+from dronekey.daemon.fuse.service import FuseService
+from dronekey.daemon.geo import CameraGeo, GeoError
+from dronekey.daemon.signals import SignalMonitor
+from dronekey.fusion import FusionConfig
+from dronekey.fusion.clock import CLOCK_MODES
+
+__all__ = ["build_parser", "main"]
+
+log = logging.getLogger("dronekey.fuse")
+
+_EPILOG = f"""Publishes one JSON message per fused track on {FUSED_KEY} (schema fused_track:
+the track's fields in ENU at the fused frame's origin, lat/lon/alt, and the contributing cameras).
+Each daemon must publish its camera pose: start it with --camera-extrinsics FILE or --camera-geo.
+
+exit codes:
+  2    bad usage (one line on stderr says which flag)
+  3    the Zenoh session could not be opened (a client with no reachable router)
+  130  stopped by SIGINT, 143 by SIGTERM"""
+
+
+class _UsageError(Exception):
+    """Bad input the user can fix; printed as one line."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="dronekey-fuse",
+        description="Fuse the drone tracks of several dronekey-daemon cameras over Zenoh: associate them\n"
+        "across cameras, triangulate, and publish fused tracks. docs/fleet.md is the guide.",
+        epilog=_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("--version", action="version", version=f"%(prog)s {dronekey.__version__}")
+    p.add_argument(
+        "--cameras",
+        metavar="ID[,ID...]",
+        help="camera ids to fuse (default: every daemon publishing on dronekey/*/tracks)",
+    )
+    p.add_argument(
+        "--origin",
+        metavar="LAT,LON,ALT_M",
+        help="origin of the fused ENU frame, WGS84 (default: the cameras' site origin, else the first "
+        "camera)",
+    )
+    p.add_argument("--rate-hz", type=float, default=30.0, metavar="HZ", help="fused updates per second (30)")
+    p.add_argument(
+        "--clock",
+        choices=CLOCK_MODES,
+        default="auto",
+        help="camera clocks: trust their t_ns, align them by arrival time, or auto: trust epoch clocks "
+        "within 2 s of ours and align the others (default)",
+    )
+    p.add_argument(
+        "--max-age-s", type=float, default=0.5, metavar="S", help="leave out camera tracks older than S (0.5)"
+    )
+    g = p.add_argument_group("Zenoh (the daemon's settings and defaults)")
+    g.add_argument("--zenoh-mode", choices=("peer", "client"), default="peer", help="session mode (peer)")
+    g.add_argument("--zenoh-connect", metavar="EP", action="append", default=[], help="endpoint (repeatable)")
+    g.add_argument(
+        "--zenoh-listen",
+        metavar="EP",
+        action="append",
+        help="endpoint to listen on (repeatable; default: tcp/127.0.0.1:0 for a peer, none for a client)",
+    )
+    g.add_argument(
+        "--zenoh-scouting", action="store_true", help="multicast and gossip scouting on (default off)"
+    )
+    p.add_argument("--log-level", default="INFO", choices=("DEBUG", "INFO", "WARNING", "ERROR"))
+    return p
+
+
+def _settings(args: argparse.Namespace) -> tuple[ZenohConfig, list[str], LocalFrame | None, FusionConfig]:
+    try:
+        zenoh_settings = ZenohConfig(
+            mode=args.zenoh_mode,
+            connect=args.zenoh_connect,
+            listen=args.zenoh_listen,
+            scouting=args.zenoh_scouting,
+        )
+    except ValidationError as exc:
+        error = exc.errors()[0]
+        field = "--zenoh-" + str(error["loc"][0]) if error["loc"] else "--zenoh-*"
+        raise _UsageError(f"{field}: {error['msg']}") from None
+    if args.zenoh_mode == "client" and not args.zenoh_connect:
+        raise _UsageError(
+            "--zenoh-mode client needs --zenoh-connect ENDPOINT (the router, e.g. tcp/127.0.0.1:7447)"
+        )
+    cameras = []
+    for camera_id in (args.cameras or "").split(","):
+        if camera_id.strip():
+            try:
+                cameras.append(check_camera_id(camera_id.strip()))
+            except ValueError as exc:
+                raise _UsageError(f"--cameras {args.cameras!r}: {exc}") from None
+    origin = None
+    if args.origin is not None:
+        try:
+            geo = CameraGeo.parse(args.origin)
+        except GeoError as exc:
+            raise _UsageError(f"--origin {args.origin!r}: {exc}") from None
+        origin = LocalFrame(geo.lat_deg, geo.lon_deg, geo.alt_m)
+    if not args.rate_hz > 0:
+        raise _UsageError(f"--rate-hz must be > 0, got {args.rate_hz}")
+    try:
+        fusion = FusionConfig(max_age_s=args.max_age_s)
+    except ValueError as exc:
+        raise _UsageError(f"--max-age-s: {exc}") from None
+    return zenoh_settings, cameras, origin, fusion
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of ``dronekey-fuse``; returns the exit code."""
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(level=args.log_level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    try:
+        zenoh_settings, cameras, origin, fusion = _settings(args)
+    except _UsageError as exc:
+        log.error("%s", exc)
+        return ExitCode.USAGE
+    service = FuseService(zenoh_settings, cameras, origin, fusion, clock=args.clock, rate_hz=args.rate_hz)
+    signals = SignalMonitor()
+    signals.install()
+    threading.Thread(target=lambda: (signals.stop.wait(), service.stop()), name="stop", daemon=True).start()
+    try:
+        service.run()
+    except zenoh.ZError as exc:
+        log.error("zenoh session could not be opened: %s", str(exc).split(" at ", 1)[0])
+        return ExitCode.SOURCE_FAILED
+    finally:
+        signals.finished()
+    return signals.exit_code or ExitCode.OK
