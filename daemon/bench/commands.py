@@ -13,13 +13,14 @@ from pathlib import Path
 
 from dronekey.bench.arguments import positive_float, positive_int
 from dronekey.daemon.bench.bench_setup import BenchSetup
+from dronekey.daemon.bench.cameras import run_cameras_bench
 from dronekey.daemon.bench.daemon_run import signal_monitor
 from dronekey.daemon.bench.errors import BenchError, BenchInterruptedError
 from dronekey.daemon.bench.pipeline import MAX_LATENCY_FRAMES, run_pipeline_bench
 from dronekey.daemon.bench.soak import run_soak
 from dronekey.daemon.sources.opencv_readers import quiet_native_logs
 
-__all__ = ["add_pipeline_command", "add_soak_command"]
+__all__ = ["add_cameras_command", "add_pipeline_command", "add_soak_command"]
 
 PIPELINE_TABLE_KEYS = (
     "frames",
@@ -29,6 +30,8 @@ PIPELINE_TABLE_KEYS = (
     "decode_fps",
     "model_fps",
     "efficiency",
+    "cpu_limit_fps",
+    "efficiency_vs_cpu_limit",
     "cpu_percent",
     "rss_mb",
 )
@@ -68,7 +71,7 @@ def _run_pipeline_command(args: argparse.Namespace) -> int:
         return exc.exit_code if isinstance(exc, BenchInterruptedError) else 1
     finally:
         signals.finished()
-    print(json.dumps(report, indent=2) if args.json else _table(report, PIPELINE_TABLE_KEYS, 16))
+    print(json.dumps(report, indent=2) if args.json else _table(report, PIPELINE_TABLE_KEYS, 23))
     return 0
 
 
@@ -152,6 +155,62 @@ def add_pipeline_command(subparsers) -> None:
         help="first frames of each daemon pass not measured (default 30)",
     )
     parser.set_defaults(handler=_run_pipeline_command)
+
+
+def _camera_lines(report: dict) -> str:
+    """The cameras report as a table: one line per camera, then the totals."""
+    heads = ("fps", "dropped", "p50 ms", "p99 ms", "cpu ms", "rss MB")
+    lines = [f"{'camera':8s} " + " ".join(f"{h:>8s}" for h in heads)]
+    for c in report["cameras"]:
+        lines.append(
+            f"{c['camera']:8s} {c['fps']:8.2f} {c['dropped']:8d} {c['latency_ms_p50']:8.2f} "
+            f"{c['latency_ms_p99']:8.2f} {c['cpu_ms_per_frame']:8.2f} {c['rss_mb']:8.1f}"
+        )
+    keys = (
+        "fps_total",
+        "dropped_total",
+        "decode_cpu_ms_per_frame",
+        "pipeline_cpu_ms_per_frame",
+        "cpu_ms_per_frame",
+        "rss_mb",
+        "cores",
+        "cpu_limit_fps",
+        "load_vs_cpu_limit",
+    )
+    return "\n".join(lines) + "\n" + _table(report, keys, 25)
+
+
+def _run_cameras_command(args: argparse.Namespace) -> int:
+    quiet_native_logs(verbose=False)
+    signals = signal_monitor(install=True)
+    try:
+        report = run_cameras_bench(_setup(args), count=args.count, seconds=args.seconds, signals=signals)
+    except BenchError as exc:
+        print(f"dronekey-bench cameras: error: {exc}", file=sys.stderr)
+        return exc.exit_code if isinstance(exc, BenchInterruptedError) else 1
+    finally:
+        signals.finished()
+    print(json.dumps(report, indent=2) if args.json else _camera_lines(report))
+    return 0
+
+
+def add_cameras_command(subparsers) -> None:
+    """Register ``cameras``: N paced cameras on this box, one daemon process each."""
+    parser = subparsers.add_parser(
+        "cameras",
+        help="N cameras as deployed (one daemon process each, paced at the clip's rate) vs the CPU limit",
+        description="Run --count daemons at once, one per camera as the dronekey@.service template "
+        "deploys them, each reading --source paced at its frame rate with every output on, for "
+        "--seconds. Per camera: achieved fps, dropped frames, latency p50/p99 (decoded -> published), "
+        "CPU per frame, RSS. In total: decode-only and pipeline-only CPU per frame (measured in the same "
+        "run), RSS, and the CPU-bound limit: frames per second the cores can do given those two.",
+    )
+    _common_arguments(parser)
+    parser.add_argument("--count", type=positive_int, default=1, help="cameras to run (default 1)")
+    parser.add_argument(
+        "--seconds", type=positive_float, default=60.0, help="seconds each camera runs (default 60)"
+    )
+    parser.set_defaults(handler=_run_cameras_command)
 
 
 def add_soak_command(subparsers) -> None:

@@ -37,6 +37,9 @@ class Stamp(NamedTuple):
 class Meter:
     """The daemon's pipeline behind a pipeline factory that counts frames and stamps a window.
 
+    ``pipeline_cpu_s`` sums the CPU time of ``TrackingPipeline.process`` alone (its thread's, so the
+    decoder and the outputs are not in it) over the frames after the warm-up.
+
     ``process`` forwards to ``TrackingPipeline.process`` and stamps (``Stamp``) the end of frame
     ``warmup`` (``start``) and of the last frame (``end``); with ``rss`` the stamps hold the resident
     set and every 100th frame is stamped too (``last``, what an interrupted soak reports).
@@ -51,6 +54,7 @@ class Meter:
         self.end: Stamp | None = None
         self.last: Stamp | None = None
         self.pipeline = None
+        self.pipeline_cpu_s = 0.0  # the pipeline thread's CPU time in process(), after warm-up
         self._rss = rss
         self._process = psutil.Process()
         self._bar = tqdm(total=frames, desc=desc, unit="frame", file=sys.stderr, leave=False)
@@ -64,7 +68,10 @@ class Meter:
         return self.pipeline.info()
 
     def process(self, frame):
+        started = time.thread_time()
         output = self.pipeline.process(frame)
+        if self.start is not None and self.end is None:
+            self.pipeline_cpu_s += time.thread_time() - started
         self.frames += 1
         self.modes[output.mode] += 1
         if self.frames == self.warmup:

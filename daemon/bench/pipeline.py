@@ -12,10 +12,12 @@ Four passes over the same file, one report:
 4. *model*: ``KeypointModel.inference`` alone at batch 1 and the model's input size, with the
    pipeline's intra-op threads -> ``model_fps``.
 
-``efficiency = fps / min(decode_fps, model_fps)``; ``rss_mb`` is the peak resident set of the process
-over all passes (MiB, as every ``*_mb`` figure here). The first ``warmup`` frames of each daemon
-pass (ONNX Runtime's first runs, the Zenoh session opening) are left out of its figures. The source
-loops, so ``frames`` may exceed the clip's length.
+``efficiency = fps / min(decode_fps, model_fps)``; ``cpu_limit_fps`` is the CPU-bound limit
+(``cpu_limit.py``) from the decode pass's CPU per frame and the flat-out pass's pipeline CPU per
+frame, and ``efficiency_vs_cpu_limit = fps / cpu_limit_fps``; ``rss_mb`` is the peak resident set
+of the process over all passes (MiB, as every ``*_mb`` figure here). The first ``warmup`` frames
+of each daemon pass (ONNX Runtime's first runs, the Zenoh session opening) are left out of its
+figures. The source loops, so ``frames`` may exceed the clip's length.
 """
 
 from __future__ import annotations
@@ -32,13 +34,14 @@ from tqdm import tqdm
 from dronekey.bench.model_latency import time_model
 from dronekey.daemon.app import DaemonApp
 from dronekey.daemon.bench.bench_setup import BenchSetup
+from dronekey.daemon.bench.cpu_limit import cpu_limit_fps, usable_cores
 from dronekey.daemon.bench.daemon_run import check_signals, local_endpoints, run_daemon, signal_monitor
 from dronekey.daemon.bench.errors import BenchError
 from dronekey.daemon.bench.meter import Meter, peak_rss_mb
 from dronekey.daemon.signals import SignalMonitor
 from dronekey.daemon.sources import FrameReader, SourceOpenError, make_reader
 
-__all__ = ["MAX_LATENCY_FRAMES", "measure_decode", "run_pipeline_bench"]
+__all__ = ["MAX_LATENCY_FRAMES", "measure_decode", "run_pipeline_bench", "worst_latency"]
 
 LOG = logging.getLogger(__name__)
 MAX_LATENCY_FRAMES = 2000  # SinkStats keeps the last 2048 latencies
@@ -46,9 +49,10 @@ MAX_LATENCY_FRAMES = 2000  # SinkStats keeps the last 2048 latencies
 
 def measure_decode(
     setup: BenchSetup, frames: int, signals: SignalMonitor | None = None
-) -> tuple[float, FrameReader]:
+) -> tuple[float, FrameReader, float]:
     """Frames per second of the daemon's reader for the source alone (same settings, flat out,
-    looping), and the reader (closed: its resolution and decoder threads)."""
+    looping), the reader (closed: its resolution and decoder threads), and the process CPU time per
+    frame, ms (every decoder thread's)."""
     reader = make_reader(setup.config(frames).source)
     try:
         reader.open()
@@ -56,7 +60,7 @@ def measure_decode(
         raise BenchError(f"--source: {exc}") from None
     try:
         done = 0
-        start = time.perf_counter()
+        start, start_cpu = time.perf_counter(), time.process_time()
         with tqdm(total=frames, desc="decode", unit="frame", file=sys.stderr, leave=False) as bar:
             while done < frames:
                 if signals is not None:
@@ -70,12 +74,13 @@ def measure_decode(
                     continue
                 done += 1
                 bar.update(1)
-        return frames / (time.perf_counter() - start), reader
+        cpu_ms = 1e3 * (time.process_time() - start_cpu) / frames
+        return frames / (time.perf_counter() - start), reader, cpu_ms
     finally:
         reader.close()
 
 
-def _latency(app: DaemonApp, warmup: int) -> tuple[float, float, dict]:
+def worst_latency(app: DaemonApp, warmup: int) -> tuple[float, float, dict]:
     """Worst p50 and p99 over the outputs (decoded -> published, after ``warmup`` updates), and per output."""
     per_sink = {}
     for name, worker in app.outputs.items():
@@ -122,7 +127,7 @@ def run_pipeline_bench(
 
     LOG.info("decode pass: %d frames", frames)
     signals = signals or signal_monitor()
-    decode_fps, reader = measure_decode(setup, frames, signals)
+    decode_fps, reader, decode_cpu_ms = measure_decode(setup, frames, signals)
 
     LOG.info("flat-out pass: %d frames", frames)
     flat = Meter(frames, warmup, "flat out")
@@ -130,12 +135,15 @@ def run_pipeline_bench(
         flat_app = run_daemon(setup.config(frames, outputs), flat, signals)
     n, wall_s, cpu_s = flat.window()
     fps = n / wall_s
+    pipeline_cpu_ms = 1e3 * flat.pipeline_cpu_s / n
+    cores = usable_cores()
+    limit = cpu_limit_fps(decode_cpu_ms, pipeline_cpu_ms, cores)
 
     LOG.info("paced pass: %d frames at the clip's frame rate", latency_frames)
     paced = Meter(latency_frames, warmup, "paced")
     with local_endpoints() as outputs:
         paced_app = run_daemon(setup.config(latency_frames, outputs, realtime=True), paced, signals)
-    p50, p99, per_sink = _latency(paced_app, warmup)
+    p50, p99, per_sink = worst_latency(paced_app, warmup)
     pn, pwall_s, pcpu_s = paced.window()
 
     keypoints = flat.pipeline.model
@@ -152,6 +160,8 @@ def run_pipeline_bench(
         "decode_fps": round(decode_fps, 2),
         "model_fps": round(model_fps, 1),
         "efficiency": round(fps / min(decode_fps, model_fps), 3),
+        "cpu_limit_fps": round(limit, 1),
+        "efficiency_vs_cpu_limit": round(fps / limit, 3),
         "cpu_percent": round(100.0 * cpu_s / wall_s, 1),
         "rss_mb": round(peak_rss_mb(), 1),
         "details": {
@@ -165,6 +175,9 @@ def run_pipeline_bench(
             "warmup_frames": warmup,
             "modes": dict(flat.modes),
             "cpu_ms_per_frame": round(1e3 * cpu_s / n, 2),
+            "decode_cpu_ms_per_frame": round(decode_cpu_ms, 2),
+            "pipeline_cpu_ms_per_frame": round(pipeline_cpu_ms, 2),
+            "cores": cores,
             "dropped_by_outputs": {name: w.stats.dropped for name, w in flat_app.outputs.items()},
             "paced": {
                 "frames": pn,

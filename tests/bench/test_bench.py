@@ -24,6 +24,8 @@ PIPELINE_KEYS = {
     "decode_fps",
     "model_fps",
     "efficiency",
+    "cpu_limit_fps",
+    "efficiency_vs_cpu_limit",
     "cpu_percent",
     "rss_mb",
 }
@@ -65,6 +67,10 @@ def test_pipeline_reports_every_figure(assets):
         report["fps"] / min(report["decode_fps"], report["model_fps"]), rel=0.01, abs=0.001
     )  # from the rounded figures
     details = report["details"]
+    per_frame_ms = details["decode_cpu_ms_per_frame"] + details["pipeline_cpu_ms_per_frame"]
+    assert report["cpu_limit_fps"] == pytest.approx(details["cores"] * 1000 / per_frame_ms, rel=0.02)
+    efficiency = report["fps"] / report["cpu_limit_fps"]
+    assert report["efficiency_vs_cpu_limit"] == pytest.approx(efficiency, rel=0.01)
     assert details["resolution"] == [320, 240]
     assert set(details["paced"]["outputs"]) == {"zenoh", "mavlink", "mcap"}
     for output in details["paced"]["outputs"].values():

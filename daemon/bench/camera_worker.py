@@ -1,0 +1,82 @@
+"""One camera of ``dronekey-bench cameras``: a daemon process as a ``dronekey@camN`` unit runs it.
+
+Run as ``python -m dronekey.daemon.bench.camera_worker JSON`` by ``cameras.py``; JSON holds the
+source, calibration, model, camera id, frames, warm-up and the clip's frame rate. The daemon reads
+the clip paced at its frame rate (``source.realtime``, looping) with every output on (local
+endpoints) and stops after ``frames``; the worker prints one JSON line with this camera's figures:
+
+- ``fps``: frames processed per second after the warm-up;
+- ``dropped``: frames a camera at the clip's rate would have sent in that time but the daemon did
+  not take (the file source waits instead of dropping, so the shortfall is counted);
+- ``latency_ms_p50`` / ``p99``: frame decoded -> update published, of the slowest output;
+- ``cpu_ms_per_frame``: the process's CPU per frame (decoder, pipeline, outputs), and
+  ``pipeline_cpu_ms_per_frame``: ``TrackingPipeline.process`` alone;
+- ``rss_mb``: resident set at the end (MiB).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import sys
+from pathlib import Path
+
+import psutil
+
+from dronekey.daemon.bench.bench_setup import BenchSetup
+from dronekey.daemon.bench.daemon_run import local_endpoints, run_daemon, signal_monitor
+from dronekey.daemon.bench.errors import BenchError
+from dronekey.daemon.bench.meter import MIB, Meter
+from dronekey.daemon.bench.pipeline import worst_latency
+from dronekey.daemon.sources.opencv_readers import quiet_native_logs
+
+__all__ = ["run_camera"]
+
+
+def run_camera(setup: BenchSetup, camera_id: str, frames: int, warmup: int, clip_fps: float) -> dict:
+    """Run one paced daemon for ``frames`` frames of a clip at ``clip_fps``; this camera's figures
+    (module docstring)."""
+    meter = Meter(frames, warmup, camera_id)
+    with local_endpoints() as outputs:
+        config = setup.config(frames, outputs, realtime=True)
+        config = config.model_copy(update={"camera": config.camera.model_copy(update={"id": camera_id})})
+        app = run_daemon(config, meter, signal_monitor(install=True))
+    n, wall_s, cpu_s = meter.window()
+    p50, p99, _ = worst_latency(app, warmup)
+    return {
+        "camera": camera_id,
+        "frames": n,
+        "fps": round(n / wall_s, 2),
+        "clip_fps": round(clip_fps, 3),
+        "dropped": max(0, round(wall_s * clip_fps) - n),
+        "latency_ms_p50": round(p50, 2),
+        "latency_ms_p99": round(p99, 2),
+        "cpu_ms_per_frame": round(1e3 * cpu_s / n, 2),
+        "pipeline_cpu_ms_per_frame": round(1e3 * meter.pipeline_cpu_s / n, 2),
+        "rss_mb": round(psutil.Process().memory_info().rss / MIB, 1),
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the child process; prints one JSON line, or one error line (exit 1)."""
+    args = json.loads((argv or sys.argv[1:])[0])
+    logging.basicConfig(level=logging.WARNING, stream=sys.stderr)
+    quiet_native_logs(verbose=False)
+    setup = BenchSetup(
+        Path(args["source"]),
+        Path(args["calib"]) if args.get("calib") else None,
+        Path(args["model"]) if args.get("model") else None,
+        args.get("decode_threads"),
+        args.get("model_threads"),
+    )
+    try:
+        report = run_camera(setup, args["camera"], args["frames"], args["warmup"], args["clip_fps"])
+    except BenchError as exc:
+        print(f"{args['camera']}: {exc}", file=sys.stderr)
+        return 1
+    print(json.dumps(report), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

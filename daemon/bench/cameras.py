@@ -1,0 +1,116 @@
+"""``dronekey-bench cameras``: N cameras on one box, as deployed, against the CPU-bound limit.
+
+As deployed means one daemon process per camera (the ``dronekey@camN`` systemd template unit):
+each is ``camera_worker.py`` in its own process, reading the clip paced at its frame rate (a camera
+delivers frames at its rate, not faster) with every output on, its own camera id. They start
+together and run ``seconds`` each. Before them, in the same run, a decode-only pass measures the
+reader's CPU per frame; the workers measure the pipeline's. The report:
+
+- ``cameras``: per camera, achieved ``fps``, ``dropped`` frames, ``latency_ms_p50`` / ``p99``
+  (frame decoded -> published), CPU and RSS (``camera_worker.py``);
+- in total: ``decode_cpu_ms_per_frame`` (decode-only pass), ``pipeline_cpu_ms_per_frame`` (mean over
+  the cameras), ``cpu_ms_per_frame`` (whole processes, outputs included), ``rss_mb`` (the sum);
+- ``cpu_limit_fps``: frames per second the cores can do given those two figures (``cpu_limit.py``),
+  and ``fps_total`` / ``cpu_limit_fps`` as ``load_vs_cpu_limit``.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import subprocess
+import sys
+import time
+
+from dronekey.daemon.bench.bench_setup import BenchSetup
+from dronekey.daemon.bench.cpu_limit import cpu_limit_fps, usable_cores
+from dronekey.daemon.bench.errors import BenchError, BenchInterruptedError
+from dronekey.daemon.bench.pipeline import measure_decode
+from dronekey.daemon.signals import SignalMonitor
+
+__all__ = ["run_cameras_bench"]
+
+LOG = logging.getLogger(__name__)
+_DECODE_FRAMES = 300
+_START_GRACE_S = 120.0  # model load, Zenoh session, first frames: per worker, on a loaded box
+
+
+def _worker_command(
+    setup: BenchSetup, camera_id: str, frames: int, warmup: int, clip_fps: float
+) -> list[str]:
+    args = {
+        "source": str(setup.source),
+        "calib": str(setup.calib) if setup.calib else None,
+        "model": str(setup.model) if setup.model else None,
+        "decode_threads": setup.decode_threads,
+        "model_threads": setup.model_threads,
+        "camera": camera_id,
+        "frames": frames,
+        "warmup": warmup,
+        "clip_fps": clip_fps,
+    }
+    return [sys.executable, "-m", "dronekey.daemon.bench.camera_worker", json.dumps(args)]
+
+
+def run_cameras_bench(
+    setup: BenchSetup, *, count: int, seconds: float, warmup_s: float = 2.0, signals: SignalMonitor
+) -> dict:
+    """Run ``count`` paced cameras for ``seconds`` each (after ``warmup_s``); the report (module
+    docstring)."""
+    setup.check()
+    LOG.info("decode pass: %d frames", _DECODE_FRAMES)
+    _, reader, decode_cpu_ms = measure_decode(setup, _DECODE_FRAMES, signals)
+    clip_fps = reader.frame_rate or 30.0
+    warmup = max(1, round(warmup_s * clip_fps))
+    frames = warmup + max(1, round(seconds * clip_fps))
+    ids = [f"cam{i}" for i in range(count)]
+    procs = {
+        cam: subprocess.Popen(
+            _worker_command(setup, cam, frames, warmup, clip_fps),
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        for cam in ids
+    }
+    deadline = time.monotonic() + frames / clip_fps * 3 + _START_GRACE_S
+    try:
+        while any(p.poll() is None for p in procs.values()):
+            if signals.exit_code is not None:
+                raise BenchInterruptedError(f"stopped by {signals.exit_code.name}", int(signals.exit_code))
+            if time.monotonic() > deadline:
+                raise BenchError(f"the cameras did not finish {frames} frames in time")
+            time.sleep(0.2)
+    finally:
+        for p in procs.values():
+            if p.poll() is None:
+                p.terminate()
+    cameras = []
+    for cam, proc in procs.items():
+        out, err = proc.communicate()
+        if proc.returncode != 0 or not out.strip():
+            last = (err.strip().splitlines() or ["no output"])[-1]
+            raise BenchError(f"camera {cam} failed (exit {proc.returncode}): {last}")
+        cameras.append(json.loads(out.strip().splitlines()[-1]))
+    pipeline_ms = sum(c["pipeline_cpu_ms_per_frame"] for c in cameras) / count
+    cores = usable_cores()
+    limit = cpu_limit_fps(decode_cpu_ms, pipeline_ms, cores)
+    fps_total = sum(c["fps"] for c in cameras)
+    return {
+        "count": count,
+        "seconds": seconds,
+        "clip_fps": round(clip_fps, 3),
+        "cameras": cameras,
+        "fps_total": round(fps_total, 2),
+        "dropped_total": sum(c["dropped"] for c in cameras),
+        "latency_ms_p99_worst": max(c["latency_ms_p99"] for c in cameras),
+        "decode_cpu_ms_per_frame": round(decode_cpu_ms, 2),
+        "pipeline_cpu_ms_per_frame": round(pipeline_ms, 2),
+        "cpu_ms_per_frame": round(sum(c["cpu_ms_per_frame"] for c in cameras) / count, 2),
+        "rss_mb": round(sum(c["rss_mb"] for c in cameras), 1),
+        "cores": cores,
+        "cpu_limit_fps": round(limit, 1) if math.isfinite(limit) else None,
+        "load_vs_cpu_limit": round(fps_total / limit, 3) if math.isfinite(limit) else None,
+        "decode_threads": getattr(reader, "decode_threads", None),
+    }

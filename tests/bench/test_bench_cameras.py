@@ -1,0 +1,56 @@
+"""``dronekey-bench cameras`` on a tiny clip with the untrained test model: two paced daemon processes
+with every output on, their per-camera figures, the totals and the CPU-bound limit. A few seconds of
+run time, no speed assertions (the figures come from the command itself, on an idle box)."""
+
+import json
+import subprocess
+import sys
+
+import pytest
+from test_bench import assets as assets  # the same clip, calibration and model (a fixture)
+from test_bench import common
+
+CAMERA_KEYS = {
+    "camera", "frames", "fps", "clip_fps", "dropped", "latency_ms_p50", "latency_ms_p99",
+    "cpu_ms_per_frame", "pipeline_cpu_ms_per_frame", "rss_mb",
+}  # fmt: skip
+
+
+def cameras(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "dronekey.bench.cli", "cameras", *args],
+        capture_output=True,
+        text=True,
+        timeout=240,
+    )
+
+
+def test_two_cameras_report_each_and_the_cpu_limit(assets):
+    result = cameras(*common(assets), "--count", "2", "--seconds", "2", "--json")
+    assert result.returncode == 0, result.stderr
+    report = json.loads(result.stdout)
+    assert report["count"] == 2 and [c["camera"] for c in report["cameras"]] == ["cam0", "cam1"]
+    for cam in report["cameras"]:
+        assert set(cam) == CAMERA_KEYS
+        assert cam["frames"] == 60 and cam["clip_fps"] == pytest.approx(30)  # 2 s at 30 fps
+        assert 0 < cam["fps"] <= 31 and cam["dropped"] >= 0  # paced: never faster than the clip
+        assert 0 < cam["latency_ms_p50"] <= cam["latency_ms_p99"]
+        assert 0 < cam["pipeline_cpu_ms_per_frame"] < cam["cpu_ms_per_frame"]
+    assert report["fps_total"] == pytest.approx(sum(c["fps"] for c in report["cameras"]), abs=0.02)
+    per_frame_ms = report["decode_cpu_ms_per_frame"] + report["pipeline_cpu_ms_per_frame"]
+    assert report["cpu_limit_fps"] == pytest.approx(report["cores"] * 1000 / per_frame_ms, rel=0.02)
+    assert report["rss_mb"] == pytest.approx(sum(c["rss_mb"] for c in report["cameras"]), abs=0.2)
+
+
+def test_table_and_bad_input(assets, tmp_path):
+    result = cameras(*common(assets), "--count", "1", "--seconds", "1")
+    assert result.returncode == 0, result.stderr
+    lines = result.stdout.splitlines()
+    assert lines[0].split()[:3] == ["camera", "fps", "dropped"] and lines[1].startswith("cam0")
+    assert any(line.startswith("cpu_limit_fps") for line in lines)
+    bad = cameras("--source", str(tmp_path / "absent.mp4"), "--count", "0")
+    assert bad.returncode == 2 and "--count" in bad.stderr
+    missing = cameras("--source", str(tmp_path / "absent.mp4"))
+    assert missing.returncode == 1
+    expected = f"dronekey-bench cameras: error: --source: no such file: {tmp_path / 'absent.mp4'}"
+    assert missing.stderr.strip() == expected
