@@ -89,21 +89,42 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument(
         "--zenoh-scouting", action="store_true", help="multicast and gossip scouting on (default off)"
     )
+    g.add_argument(
+        "--zenoh-tls-ca", metavar="PEM", help="fleet CA certificate (tls/ endpoints, docs/security.md)"
+    )
+    g.add_argument("--zenoh-tls-cert", metavar="PEM", help="this fuser's certificate from that CA")
+    g.add_argument("--zenoh-tls-key", metavar="PEM", help="its private key")
     p.add_argument("--log-level", default="INFO", choices=("DEBUG", "INFO", "WARNING", "ERROR"))
     return p
 
 
+# the zenoh section's fields -> this command's flags, for error messages
+_FLAGS = {
+    ("tls", "root_ca"): "--zenoh-tls-ca",
+    ("tls", "certificate"): "--zenoh-tls-cert",
+    ("tls", "private_key"): "--zenoh-tls-key",
+}
+
+
 def _settings(args: argparse.Namespace) -> tuple[ZenohConfig, list[str], LocalFrame | None, FusionConfig]:
+    tls_files = (args.zenoh_tls_ca, args.zenoh_tls_cert, args.zenoh_tls_key)
+    if any(tls_files) and not all(tls_files):
+        raise _UsageError("--zenoh-tls-ca, --zenoh-tls-cert and --zenoh-tls-key go together")
+    tls = None
+    if all(tls_files):
+        tls = {"root_ca": tls_files[0], "certificate": tls_files[1], "private_key": tls_files[2]}
     try:
         zenoh_settings = ZenohConfig(
             mode=args.zenoh_mode,
             connect=args.zenoh_connect,
             listen=args.zenoh_listen,
             scouting=args.zenoh_scouting,
+            tls=tls,
         )
     except ValidationError as exc:
         error = exc.errors()[0]
-        field = "--zenoh-" + str(error["loc"][0]) if error["loc"] else "--zenoh-*"
+        loc = tuple(str(part) for part in error["loc"] if not isinstance(part, int))
+        field = _FLAGS.get(loc, "--zenoh-" + "-".join(loc))
         raise _UsageError(f"{field}: {error['msg']}") from None
     if args.zenoh_mode == "client" and not args.zenoh_connect:
         raise _UsageError(

@@ -5,6 +5,7 @@
     dronekey-eval pose --all DIR [--json]            # seq11-13 in DIR, the paper's Tab. VI
     dronekey-eval pose ... --oracle-noise PX         # ground-truth keypoints + noise: PnP and filter only
     dronekey-eval mot --sequence DIR/swarm.json [--gate M] [--json]   # MOTA, IDF1, ID switches
+    dronekey-eval fusion DIR [--gate M] [--json]     # dronekey-sim --cameras N: each camera vs fused
     dronekey-eval robustness --out DIR [--json] [--frames N] [--seeds N ...] [--tuning] [--quick]
                                                      # LEDs x backgrounds x motions, far drones, drone-free
 
@@ -20,6 +21,7 @@ import sys
 from collections.abc import Iterator
 from pathlib import Path
 
+from dronekey.evaluation.fusion import evaluate_fusion, fusion_table
 from dronekey.evaluation.keypoints import evaluate_keypoints
 from dronekey.evaluation.mot import DEFAULT_GATE_M, evaluate_mot, mot_table
 from dronekey.evaluation.pose import evaluate_sequence, table_vi, weighted_average
@@ -144,6 +146,16 @@ def _cmd_pose(args: argparse.Namespace) -> int:
         print(json.dumps({"sequences": [r.to_dict() for r in results], "average": avg}))
     else:
         print(table_vi(results))
+    return 0
+
+
+def _cmd_fusion(args: argparse.Namespace) -> int:
+    if not Path(args.folder).is_dir():
+        raise _UsageError(f"fusion folder not found: {args.folder}")
+    if not args.gate > 0:
+        raise _UsageError(f"--gate must be a positive distance in metres, got {args.gate}")
+    result = evaluate_fusion(args.folder, args.model, gate_m=args.gate, max_frames=args.frames)
+    print(json.dumps(result.to_dict()) if args.json else fusion_table(result))
     return 0
 
 
@@ -310,6 +322,22 @@ def build_parser() -> argparse.ArgumentParser:
     )
     m.add_argument("--json", action="store_true", help="print one JSON object")
     m.set_defaults(func=_cmd_mot)
+    f = sub.add_parser(
+        "fusion",
+        help="each camera's pipeline and the fuser on a multi-camera render: single vs fused",
+        description="Run each camera's pipeline over a dronekey-sim --cameras N render (site.json and a "
+        "folder per camera), fuse the tracks (dronekey.fusion, poses from site.json) and print, per "
+        "camera and fused, RMSE, MAE-absolute and MAE-angle in the site frame, and MOTA, IDF1 and ID "
+        "switches (motmetrics, matched within --gate) (docs/evaluation.md).",
+    )
+    f.add_argument("folder", metavar="DIR", help="the folder dronekey-sim --cameras N wrote")
+    f.add_argument("--model", default=None, help="ONNX model (default: the shipped one)")
+    f.add_argument("--frames", type=int, default=None, metavar="N", help="only the first N frames")
+    f.add_argument(
+        "--gate", type=float, default=2.0, metavar="M", help="MOT match distance, metres (default 2)"
+    )
+    f.add_argument("--json", action="store_true", help="print one JSON object")
+    f.set_defaults(func=_cmd_fusion)
     r = sub.add_parser(
         "robustness",
         help="the pipeline under LED, background, motion and range changes, and on drone-free sequences",

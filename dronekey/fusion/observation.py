@@ -4,7 +4,8 @@ A track is the filtered state of one camera at its own time ``t_ns`` (aligned to
 by ``ClockAlignment`` where the clocks differ). The fusion needs every camera at one common time:
 the position is predicted with the track's velocity, and its covariance grows with the time
 stepped over (velocity uncertainty) and with the clock alignment's uncertainty. The camera-frame
-covariance of a PnP track is long along the viewing ray (depth comes from the keypoints' spread);
+covariance of a PnP track is long along the viewing ray (depth comes from the keypoints' spread),
+and is made at least as long as the depth's real uncertainty (``FusionConfig.depth_std_frac``);
 rotated into the site frame it keeps that shape, which is what makes triangulation work.
 """
 
@@ -66,6 +67,20 @@ def _finite(values: np.ndarray, fallback: float) -> np.ndarray:
     return np.where(np.isfinite(values), values, fallback)
 
 
+def _ray_floors(cov_cam: np.ndarray, p_cam: np.ndarray, config: FusionConfig) -> np.ndarray:
+    """``cov_cam`` with its variance along the ray at least ``(depth_std_frac r)^2`` and across it
+    at least ``(bearing_std_rad r)^2`` (see ``FusionConfig``)."""
+    r = float(np.linalg.norm(p_cam))
+    u = p_cam / r
+    along = np.outer(u, u)
+    across = np.eye(3) - along
+    var_along = float(u @ cov_cam @ u)
+    var_across = 0.5 * float(np.trace(across @ cov_cam))
+    grow_along = max(0.0, (config.depth_std_frac * r) ** 2 - var_along)
+    grow_across = max(0.0, (config.bearing_std_rad * r) ** 2 - var_across)
+    return cov_cam + grow_along * along + grow_across * across
+
+
 def _floored(cov: np.ndarray, min_std_m: float) -> np.ndarray:
     cov = 0.5 * (cov + cov.T)
     w, V = np.linalg.eigh(cov)
@@ -98,6 +113,7 @@ def observe(
     cov_cam = np.asarray(track.position_cov, dtype=np.float64).reshape(3, 3)
     if not np.all(np.isfinite(cov_cam)):
         cov_cam = np.eye(3) * max(float(np.dot(p_cam, p_cam)), 1.0)  # unknown: wide
+    cov_cam = _ray_floors(0.5 * (cov_cam + cov_cam.T), p_cam, config)
     speed = float(np.linalg.norm(v_cam))
     growth = (config.velocity_std_mps * dt) ** 2 + (speed * config.clock_std_s) ** 2
     cov_site = _floored(pose.covariance_to_site(cov_cam) + growth * np.eye(3), config.min_std_m)

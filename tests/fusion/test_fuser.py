@@ -54,8 +54,10 @@ def test_one_camera_falls_back_to_its_own_position():
 
 
 def test_association_rejects_a_mismatched_pair():
-    # camA sees one drone, camB another 6 m to the side at the same range: their rays miss
-    other = DRONE + np.array([6.0, 0.0, 0.0])
+    # camA sees one drone, camB another 6 m above it: their rays miss by metres. (Two drones at one
+    # height seen by two cameras at one height give rays that cross: a ghost no two-camera geometry
+    # can reject; a third camera or the drones' tracks over time can.)
+    other = DRONE + np.array([0.0, 0.0, 6.0])
     fuser = _fuser()
     fuser.update("camA", camera_track(CAM_A, DRONE, t_ns=0))
     fuser.update("camB", camera_track(CAM_B, other, t_ns=0))
