@@ -11,6 +11,7 @@ from dronekey.geometry.rotations import rotation_from_euler_deg
 from dronekey.perception.localizer import box_from_keypoints
 from dronekey.perception.plausibility import PlausibilityConfig, check_detection, check_pose
 from dronekey.perception.pose import PoseEstimator
+from dronekey.pipeline import PoseTracker
 from dronekey.types import KeypointDetection
 
 CAMERA = CameraModel.from_fov(1920, 1080, 70)
@@ -92,6 +93,23 @@ def test_a_tiny_drone_in_a_minimum_size_crop_passes():
     kp = centre + (det.keypoints_px - centre) * 12.0 / max(_pairs(det.keypoints_px))
     roi = (int(centre[0]) - 16, int(centre[1]) - 16, 32)
     assert check_detection(KeypointDetection(kp, 0.99, roi), CAMERA.size) is None
+
+
+def test_keypoints_that_no_rigid_drone_explains_are_refused():
+    # A drone's four hubs, even as coarsely placed as the network places them, fit a pose within
+    # 1.2 % of their spread (tuning seeds); clutter in a frame-sized crop misfit by 3-4 %.
+    det = drone_detection(t=(0.3, -0.4, 2.0))
+    rng = np.random.default_rng(5)
+    noisy = KeypointDetection(det.keypoints_px + rng.normal(0.0, 0.5, (4, 2)), 0.99, det.roi)
+    measurement, reason = PoseTracker(CAMERA, SPEC).measure(noisy, None)
+    assert reason is None and measurement is not None
+    bent = det.keypoints_px.copy()
+    bent[0, 1] += 0.15 * max(_pairs(bent))  # one propeller 15 % of the spread off the rigid shape
+    bent_det = KeypointDetection(bent, 0.99, det.roi)
+    measurement, reason = PoseTracker(CAMERA, SPEC).measure(bent_det, None)
+    assert measurement is None and reason.startswith("reprojection")
+    loose, reason = PoseTracker(CAMERA, SPEC, max_reprojection_frac=0.06).measure(bent_det, None)
+    assert reason is None and loose is not None
 
 
 def _pairs(kp):
