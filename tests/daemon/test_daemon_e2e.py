@@ -26,6 +26,7 @@ import av
 import numpy as np
 import pytest
 from daemon_media import encode_clip, free_port, write_untrained_model
+from foxglove_checks import decode
 from mcap.reader import make_reader as make_mcap_reader
 from pymavlink import mavutil
 
@@ -152,7 +153,8 @@ class GroundStation:
 
 
 def read_mcap(folder: Path) -> tuple[dict, dict[str, list]]:
-    """(topic -> schema name, topic -> decoded JSON messages) of the one MCAP file in ``folder``."""
+    """(topic -> schema name, topic -> decoded messages) of the one MCAP file in ``folder``: JSON
+    channels as dicts, Foxglove's protobuf channels as their published message classes."""
     (path,) = folder.glob("*.mcap")
     with open(path, "rb") as f:
         reader = make_mcap_reader(f)
@@ -160,8 +162,8 @@ def read_mcap(folder: Path) -> tuple[dict, dict[str, list]]:
         assert summary is not None, "the MCAP file was not finalised"
         schemas = {ch.topic: summary.schemas[ch.schema_id].name for ch in summary.channels.values()}
         messages: dict[str, list] = {topic: [] for topic in schemas}
-        for _schema, channel, message in reader.iter_messages():
-            messages[channel.topic].append(json.loads(message.data))
+        for schema, channel, message in reader.iter_messages():
+            messages[channel.topic].append(decode(schema.name, channel.message_encoding, message.data))
     return schemas, messages
 
 
@@ -219,6 +221,7 @@ def test_all_outputs_run_and_stop_cleanly(tmp_path, dialect):
         "/camera/calibration": "foxglove.CameraCalibration",
         "/dronekey/annotations": "foxglove.ImageAnnotations",
         "/tf": "foxglove.FrameTransforms",
+        "/dronekey/scene": "foxglove.SceneUpdate",
         "/dronekey/tracks": "dronekey.Track",
         "/dronekey/status": "dronekey.Status",
     }
