@@ -7,10 +7,14 @@ together exactly once, for the evaluation and the daemon alike (docs/design.md Â
 Every live track gets a crop around its predicted pose, all in one batched inference; the
 prediction is the prior that turns the detection to the track's front (the heading twin, whose
 evidence the tracker weighs), undoes the network's other keypoint-order flips (``keypoint_order``)
-and picks between the two IPPE solutions. When no confirmed track was measured this frame, and
-every ``search_every`` frames regardless, the localiser searches the whole frame; every candidate
-that holds a drone becomes a measurement of its own, so each starts a tentative hypothesis and
-only the ones whose evidence holds are confirmed. Every detection must pass the plausibility gate
+and picks between the two IPPE solutions. The localiser then searches the frame outside the live
+tracks' regions: with its full budget (``LocalizerConfig.max_candidates``) when no confirmed track
+was measured this frame and every ``search_every`` frames, and with ``max_search_candidates`` on
+every other frame while fewer than ``TrackerConfig.max_tracks`` tracks are confirmed, so a second
+drone is found within frames of entering the view. Every candidate that holds a drone becomes a
+measurement of its own, so each starts a tentative hypothesis and only the ones whose evidence
+holds are confirmed. The tracker assigns all of the frame's poses to its tracks at once
+(Hungarian, ``dronekey.tracking.tracker``). Every detection must pass the plausibility gate
 (``dronekey.perception.plausibility``) before its pose reaches the tracker.
 """
 
@@ -44,6 +48,8 @@ from dronekey.types import Frame, KeypointDetection, PoseMeasurement, PoseReject
 __all__ = ["Measured", "PipelineOutput", "PoseTracker", "TrackingPipeline"]
 
 log = logging.getLogger(__name__)
+
+_HELD = (TrackStatus.CONFIRMED, TrackStatus.COASTING)  # confirmed tracks, measured this frame or not
 
 
 @dataclass(frozen=True, slots=True)
@@ -217,6 +223,10 @@ class TrackingPipeline:
         found; 0 never searches while tracking. A search costs about 20-60 ms on the 2-core box
         (saliency, up to 6 crops and their mirrors, refines), so every 30 frames (1 s) keeps it
         to 1-2 ms per frame.
+    max_search_candidates : the per-frame budget of the search for more drones while fewer than
+        ``TrackerConfig.max_tracks`` tracks are confirmed (candidates on the live tracks' regions
+        are not proposed, so the budget goes to the rest of the frame): 2 keeps the search to a
+        saliency pass and at most two crops (and their refines) per frame, about 10-20 ms here.
     """
 
     def __init__(
@@ -233,10 +243,18 @@ class TrackingPipeline:
         max_reprojection_frac: float = 0.025,
         plausibility: PlausibilityConfig | None = None,
         search_every: int = 30,
+        max_search_candidates: int = 2,
     ) -> None:
         if isinstance(search_every, bool) or not isinstance(search_every, int) or search_every < 0:
             raise ValueError(f"search_every must be an integer >= 0, got {search_every!r}")
+        if (
+            isinstance(max_search_candidates, bool)
+            or not isinstance(max_search_candidates, int)
+            or max_search_candidates < 0
+        ):
+            raise ValueError(f"max_search_candidates must be an integer >= 0, got {max_search_candidates!r}")
         self.search_every = search_every
+        self.max_search_candidates = max_search_candidates
         self.camera = camera
         self.spec: DroneSpec = drone if isinstance(drone, DroneSpec) else load_spec(drone)
         self.model = KeypointModel(
@@ -273,12 +291,13 @@ class TrackingPipeline:
         self.frames += 1
         timings: dict[str, float] = {}
         t0 = time.perf_counter()
-        measured, taken, rejections, tracked_confirmed = self._track_crops(frame, w, h)
+        measured, regions, rejections, state = self._track_crops(frame, w, h)
         timings["track_crop"] = _ms(t0)
-        search = not tracked_confirmed or (self.search_every and self.frames % self.search_every == 0)
-        if search:
+        budget, more_only = self._search_budget(state)
+        exclude = regions[1] if more_only else regions[0]
+        if budget:
             t1 = time.perf_counter()
-            for det in self.localizer.acquire_all(frame.bgr, taken):
+            for det in self.localizer.acquire_all(frame.bgr, exclude, budget):
                 measurement, rejection = self.poses.measure_detection(det, None)
                 if measurement is not None:
                     measured.append(Measured(det, measurement))
@@ -301,11 +320,25 @@ class TrackingPipeline:
             tuple(measured),
         )
 
-    def _track_crops(self, frame: Frame, w: int, h: int) -> tuple[list[Measured], list, list[str], bool]:
-        """One crop per live track (best first), one batch: the poses they gave, their keypoint
-        boxes, why the others gave none, and whether a confirmed track was measured."""
+    def _search_budget(self, state: tuple[bool, int]) -> tuple[int, bool]:
+        """Candidates the search may check this frame (0: no search) and whether it looks for more
+        drones only (every live track's region left out), from (whether ``max_tracks`` tracks are
+        confirmed or no track could start, confirmed tracks measured this frame)."""
+        full, n_measured = state
+        if n_measured == 0 or (self.search_every and self.frames % self.search_every == 0):
+            return self.localizer.config.max_candidates, False
+        return (0, True) if full else (self.max_search_candidates, True)
+
+    def _track_crops(
+        self, frame: Frame, w: int, h: int
+    ) -> tuple[list[Measured], list, list[str], tuple[bool, int]]:
+        """One crop per live track (best first), one batch: the poses they gave, the regions the
+        search leaves out (the measured tracks' predicted and keypoint boxes), why the
+        others gave none, and (whether the tracks are full: ``max_tracks`` of them confirmed or no
+        room for another, confirmed tracks measured)."""
         owners, boxes = [], []
-        for p in self.poses.predictions(frame.t_ns):
+        predictions = self.poses.predictions(frame.t_ns)
+        for p in predictions:
             box = box_from_pose(self.camera, self.spec, p.R, p.t)
             if box is not None and _overlaps_frame(box, w, h):
                 owners.append(p)
@@ -329,7 +362,16 @@ class TrackingPipeline:
             measured.append(Measured(det, measurement, p.track_id))
             taken.append(box)
         confirmed = {p.track_id for p in owners if p.status == TrackStatus.CONFIRMED}
-        return measured, taken, rejections, any(m.track_id in confirmed for m in measured)
+        n_measured = sum(m.track_id in confirmed for m in measured)
+        n_room = self.poses.tracker.config.max_tracks - len(predictions)
+        n_confirmed = sum(p.status in _HELD for p in predictions)
+        full = n_room <= 0 or n_confirmed >= self.poses.tracker.config.max_tracks
+        # Regions the search leaves out: the measured drones (keypoint boxes, their tracks' predicted
+        # boxes), and for the search for more drones every live track's predicted box; the full
+        # search looks again where an unmeasured track's crop may have missed its drone.
+        measured_ids = {m.track_id for m in measured}
+        recover = taken + [b for p, b in zip(owners, boxes, strict=True) if p.track_id in measured_ids]
+        return measured, (recover, taken + boxes), rejections, (full, n_measured)
 
 
 def _overlaps_frame(box, w: int, h: int) -> bool:

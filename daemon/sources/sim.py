@@ -1,4 +1,6 @@
-"""``sim://<preset>``: a simulator sequence rendered on the fly (``sim_replay.synthetic_sequence``)."""
+"""``sim://<preset>``: a simulator sequence rendered on the fly: ``sim_replay.synthetic_sequence`` for
+the single-drone presets, the first camera of ``sim_replay.scene.build_scene`` for the multi-drone
+ones (``sim://swarm``: its default three drones, crossing, one passing in front of another)."""
 
 from __future__ import annotations
 
@@ -28,13 +30,17 @@ class SimReader(FrameReader):
 
     def _build(self):
         try:
+            from dronekey.sim_replay.presets import PRESETS
+            from dronekey.sim_replay.scene import build_scene
             from dronekey.sim_replay.synthetic_sequence import build_sequence
         except ImportError as exc:
-            raise SourceOpenError(
-                f"sim:// sources need dronekey.sim_replay.synthetic_sequence: {exc}"
-            ) from None
+            raise SourceOpenError(f"sim:// sources need dronekey.sim_replay: {exc}") from None
+        seed, frames = self._settings.seed, self._settings.frames
         try:
-            return build_sequence(self.preset, seed=self._settings.seed, frames=self._settings.frames)
+            preset = PRESETS.get(self.preset)
+            if preset is not None and preset.multi_drone:
+                return build_scene(self.preset, seed=seed, frames=frames).views[0]
+            return build_sequence(self.preset, seed=seed, frames=frames)
         except (KeyError, ValueError) as exc:
             message = exc.args[0] if exc.args else str(exc)
             raise SourceOpenError(f"sim://{self.preset}: {message}") from None

@@ -3,9 +3,11 @@
 A 1080p frame is far larger than the network's 128 px input and a drone may be 30 or 600 px wide,
 or absent. Two modes:
 
-- **Acquisition** (no confirmed track measured, or the periodic search): a cheap saliency pass on a
+- **Acquisition** (the search for drones outside the live tracks): a cheap saliency pass on a
   downscaled frame (local contrast against a blurred background, plus frame-to-frame change for a
-  static camera) proposes a few blobs; the network checks them all in one batch, and every one
+  static camera) proposes a few blobs, those on a live track's region left out before the budget
+  (``max_candidates``, or the caller's smaller one) is counted, so the live drones never use up the
+  search; the network checks them all in one batch, and every one
   above the presence threshold is refined by a second crop framed on its predicted keypoints
   (exactly as in training, ``dronekey.geometry.crop.CropPolicy``), all in a second batch. Each survivor
   becomes its own hypothesis downstream (``acquire_all``).
@@ -50,7 +52,8 @@ class LocalizerConfig:
 
     presence_threshold : presence probability above which a crop holds a drone.
     work_width : width (px) of the downscaled frame the saliency pass runs on.
-    max_candidates : blobs checked by the network per acquisition (one batch).
+    max_candidates : blobs checked by the network per acquisition (one batch): the search's budget
+        of candidates per frame (blobs on a live track's region are not counted).
     candidate_scale : crop side over the blob's longer side (blobs often miss faint propellers).
     min_contrast : smallest local contrast (8-bit levels) a blob must reach.
     background_sigma : blur (work-image px) that estimates the local background.
@@ -202,15 +205,19 @@ class Localizer:
         found = self.acquire_all(frame_bgr)
         return found[0] if found else None
 
-    def acquire_all(self, frame_bgr: np.ndarray, exclude: Sequence[Box] = ()) -> list[KeypointDetection]:
-        """Every candidate of a whole-frame search that holds a drone, refined, best first.
+    def acquire_all(
+        self, frame_bgr: np.ndarray, exclude: Sequence[Box] = (), max_candidates: int | None = None
+    ) -> list[KeypointDetection]:
+        """Every candidate of a search outside ``exclude`` that holds a drone, refined, best first.
 
-        All candidates are scored in one batch and those above the presence threshold refined in a
+        Blobs on a box of ``exclude`` (the live tracks' regions, full-frame px) are not proposed,
+        and at most ``max_candidates`` (default: the config's) are: the search's budget. All
+        candidates are scored in one batch and those above the presence threshold refined in a
         second; detections of the same object (keypoint boxes overlapping by more than a third)
-        keep only the best, and those on a box of ``exclude`` (the live tracks') are left out.
-        Each becomes its own hypothesis downstream, so one false candidate cannot hide the drone.
+        keep only the best, and those on a box of ``exclude`` are left out. Each becomes its own
+        hypothesis downstream, so one false candidate cannot hide the drone.
         """
-        rois = self.candidate_rois(frame_bgr)
+        rois = self.candidate_rois(frame_bgr, exclude, max_candidates)
         if not rois:
             return []
         thr = self.config.presence_threshold
@@ -232,9 +239,13 @@ class Localizer:
             boxes.append(box)
         return kept
 
-    def candidate_rois(self, frame_bgr: np.ndarray) -> list[tuple[int, int, int]]:
-        """Square crops around the most salient blobs of the frame, best first."""
-        rois, self._prev_small = propose_rois(frame_bgr, self.config, self.crop.min_side, self._prev_small)
+    def candidate_rois(
+        self, frame_bgr: np.ndarray, exclude: Sequence[Box] = (), max_candidates: int | None = None
+    ) -> list[tuple[int, int, int]]:
+        """Square crops around the most salient blobs of the frame outside ``exclude``, best first."""
+        rois, self._prev_small = propose_rois(
+            frame_bgr, self.config, self.crop.min_side, self._prev_small, exclude, max_candidates
+        )
         return rois
 
 
@@ -243,14 +254,21 @@ def propose_rois(
     config: LocalizerConfig,
     min_side: float,
     previous_small: np.ndarray | None = None,
+    exclude: Sequence[Box] = (),
+    max_candidates: int | None = None,
 ) -> tuple[list[tuple[int, int, int]], np.ndarray]:
     """Square crops (x0, y0, side) around the most salient blobs of a frame, best first.
 
     The saliency is local contrast on a ``config.work_width`` copy of the frame, plus the change
-    since ``previous_small`` (that copy of the previous frame) when ``config.use_motion``. Returns
+    since ``previous_small`` (that copy of the previous frame) when ``config.use_motion``. A blob
+    lying on a box of ``exclude`` (full-frame px; more than a third of the smaller box) is skipped
+    before the budget, ``max_candidates`` (default ``config.max_candidates``), is counted. Returns
     the crops and this frame's copy, for the next call. The training sampler calls it on drone-free
     backgrounds to mine the hard negatives the daemon would propose.
     """
+    budget = config.max_candidates if max_candidates is None else int(max_candidates)
+    if budget < 1:
+        raise ValueError(f"max_candidates must be >= 1, got {max_candidates}")
     h, w = frame_bgr.shape[:2]
     cfg = config
     scale = min(1.0, cfg.work_width / w)
@@ -271,11 +289,13 @@ def propose_rois(
         cx, cy = (bx + bw / 2) / scale - 0.5, (by + bh / 2) / scale - 0.5
         size = max(bw, bh) / scale
         side = max(cfg.candidate_scale * size, float(min_side))
+        if exclude and _on_any((bx / scale, by / scale, bw / scale, bh / scale), exclude):
+            continue  # a live track's drone: its own crop measures it
         if any(abs(cx - x) < s / 2 and abs(cy - y) < s / 2 and s / 2 < side < 2 * s for x, y, s in seen):
             continue  # the same object seen by both maps (a small blob inside a big one stays)
         rois.append(roi_around_box(cx, cy, side))
         seen.append((cx, cy, side))
-        if len(rois) >= cfg.max_candidates:
+        if len(rois) >= budget:
             break
     return rois, small
 

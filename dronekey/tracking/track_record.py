@@ -15,6 +15,7 @@ from collections import deque
 import numpy as np
 
 from dronekey.geometry.rotations import matrix_to_quat_wxyz
+from dronekey.tracking.keypoint_overlap import KeypointMotion
 from dronekey.tracking.orientation_filter import OrientationFilter
 from dronekey.tracking.position_filter import ConstantVelocityFilter
 from dronekey.tracking.tracker_config import TrackerConfig
@@ -60,6 +61,8 @@ class TrackRecord:
         self.score = score
         self.keypoints_px = keypoints_px
         self.reprojection_px = float(measurement.reprojection_px)
+        self.keypoint_motion = KeypointMotion()  # where its keypoints are expected (association)
+        self.keypoint_motion.observe(t_ns, keypoints_px)
         self.evidence: deque[tuple[float, float]] = deque(maxlen=config.confirm_window)  # (range, score)
         self.evidence.append((float(np.linalg.norm(measurement.t)), score))
         self.heading_log_odds: float | None = None  # None: no front/back evidence yet (NaN inputs)

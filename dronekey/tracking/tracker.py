@@ -8,9 +8,14 @@ measurements (as norfair's ``Tracker.update``). Each track holds two filters (do
 - :class:`~dronekey.tracking.orientation_filter.OrientationFilter`, an error-state filter on the body ->
   camera rotation that cannot jump at +-180 deg or at quaternion sign flips.
 
-Measurements are assigned to tracks by gated nearest neighbour: the cost is the squared
-Mahalanobis distance of the position innovation, pairs above ``position_gate_chi2`` are forbidden,
-and ``scipy.optimize.linear_sum_assignment`` solves the rest.
+Association is global, one measurement per track and one track per measurement:
+``scipy.optimize.linear_sum_assignment`` (the Hungarian algorithm) on the cost
+``d^2 + keypoint_overlap_weight * (1 - IoU)``, where ``d^2`` is the squared Mahalanobis distance of
+the position innovation (the filter's predicted covariance plus the measurement's) and IoU that of
+the measurement's keypoint box with the track's expected one
+(:mod:`dronekey.tracking.keypoint_overlap`). Pairs with ``d^2`` above ``position_gate_chi2`` are
+forbidden; the keypoint term only ranks. A coasting track's covariance grows with its coast, so a
+drone that reappears near its prediction re-attaches to it and keeps its id.
 
 Orientation: of a measurement's two IPPE solutions the track follows the one nearer its own
 orientation, and keeps the log-odds that the other is right, switching when they say so
@@ -41,6 +46,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from dronekey.tracking.heading import update_heading
+from dronekey.tracking.keypoint_overlap import box_iou, keypoint_box
 from dronekey.tracking.orientation_update import update_orientation
 from dronekey.tracking.track_record import NS_PER_S, TrackRecord
 from dronekey.tracking.tracker_config import TrackerConfig
@@ -160,7 +166,7 @@ class Tracker:
 
         for track in self._tracks.values():
             track.predict_to(t_ns)
-        pairs, unmatched = self._associate(measurements)
+        pairs, unmatched = self._associate(t_ns, measurements, keypoints_px)
         for track_id, j in pairs:
             self._apply(self._tracks[track_id], measurements[j], scores[j], keypoints_px[j], heading_p[j])
         matched = {track_id for track_id, _ in pairs}
@@ -245,18 +251,23 @@ class Tracker:
             self._t_ns = t_ns
         return t_ns
 
-    def _associate(self, measurements: list[PoseMeasurement]) -> tuple[list[tuple[int, int]], list[int]]:
-        """Gated nearest-neighbour assignment on the position innovation's Mahalanobis distance."""
+    def _associate(
+        self, t_ns: int, measurements: list[PoseMeasurement], keypoints_px: list[np.ndarray | None]
+    ) -> tuple[list[tuple[int, int]], list[int]]:
+        """Global assignment (Hungarian) on the gated cost d^2 + w (1 - keypoint IoU)."""
         ids = list(self._tracks)
         if not ids or not measurements:
             return [], list(range(len(measurements)))
+        weight = self.config.keypoint_overlap_weight
+        boxes = [keypoint_box(kp) for kp in keypoints_px]
         cost = np.full((len(ids), len(measurements)), _FORBIDDEN)
         for i, track_id in enumerate(ids):
-            filt = self._tracks[track_id].position
+            track = self._tracks[track_id]
+            expected = track.keypoint_motion.predicted_box(t_ns)
             for j, m in enumerate(measurements):
-                d2 = filt.mahalanobis_sq(m.t, m.covariance[:3, :3])
+                d2 = track.position.mahalanobis_sq(m.t, m.covariance[:3, :3])
                 if d2 <= self.config.position_gate_chi2:
-                    cost[i, j] = d2
+                    cost[i, j] = d2 + weight * (1.0 - box_iou(expected, boxes[j]))
                 else:
                     log.debug("track %d: measurement %d gated out (d2 = %.1f)", track_id, j, d2)
         rows, cols = linear_sum_assignment(cost)
@@ -283,6 +294,7 @@ class Tracker:
         track.last_hit_ns = track.t_ns
         track.score = score
         track.keypoints_px = keypoints_px
+        track.keypoint_motion.observe(track.t_ns, keypoints_px)
         track.reprojection_px = float(m.reprojection_px)
         if track.status is TrackStatus.TENTATIVE:
             if sum(track.window) >= cfg.confirm_hits and self._evidence_agrees(track):

@@ -114,3 +114,27 @@ def test_empty_sky_gives_no_candidate_and_no_track(pipeline):
 def test_frame_of_the_wrong_size_is_refused(pipeline):
     with pytest.raises(CalibrationError, match="960x540"):
         pipeline.process(Frame(0, 0, np.zeros((540, 960, 3), np.uint8)))
+
+
+def test_the_search_skips_live_regions_before_its_budget(pipeline):
+    """Two drones in the sky; the first is a live track's region: the search's one candidate (its
+    budget) goes to the second drone, not to the more salient first one."""
+    camera, rng = preset_camera(), np.random.default_rng(8)
+    image = sky(1080, 1920, rng)
+    R = next(iter(build_sequence("seq13", seed=3, frames=1))).record.drone.rotation
+    boxes = []
+    for u, size_px in ((600, 160), (1300, 70)):  # the first, bigger drone is the more salient
+        z = camera.fx * SPEC.extent_m / size_px
+        t = z * np.array([(u - camera.cx) / camera.fx, (540 - camera.cy) / camera.fy, 1.0])
+        style, light = DroneStyle.random(rng), Lighting.random(rng)
+        drone = render_drone(image, camera, build_mesh(SPEC), R, t, style, light)
+        boxes.append(drone.bbox_xywh)
+    localizer = pipeline.localizer
+    localizer._prev_small = None
+    both = localizer.candidate_rois(image)
+    assert any(_contains(roi, boxes[0]) for roi in both) and any(_contains(roi, boxes[1]) for roi in both)
+    localizer._prev_small = None
+    (only,) = localizer.candidate_rois(image, exclude=[boxes[0]], max_candidates=1)
+    assert _contains(only, boxes[1]), (only, boxes)
+    with pytest.raises(ValueError, match="max_candidates"):
+        localizer.candidate_rois(image, max_candidates=0)
