@@ -3,17 +3,14 @@ Off unless ``listen`` is set; a port without a host binds 127.0.0.1."""
 
 from __future__ import annotations
 
-import re
 from typing import Any
 
 from pydantic import Field, field_validator
 
+from dronekey.daemon.config.listen_address import normalise_listen, split_host_port
 from dronekey.daemon.config.section import Section
 
 __all__ = ["FoxgloveWsConfig"]
-
-_HOST_PORT = re.compile(r"^(?P<host>\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]*):(?P<port>\d{1,5})$")
-_LOOPBACK = "127.0.0.1"
 
 
 class FoxgloveWsConfig(Section):
@@ -30,18 +27,7 @@ class FoxgloveWsConfig(Section):
     @field_validator("listen", mode="before")
     @classmethod
     def _host_port(cls, v: Any) -> Any:
-        if v is None:
-            return v
-        text = str(v).strip() if isinstance(v, int | str) and not isinstance(v, bool) else v
-        if isinstance(text, str) and text.isdigit():
-            text = f":{text}"
-        m = _HOST_PORT.match(text) if isinstance(text, str) else None
-        if not m or not 0 <= int(m["port"]) < 65536:
-            raise ValueError(
-                "must be PORT, :PORT (127.0.0.1) or HOST:PORT with a port in 0-65535 (0: any free port), "
-                "e.g. 8765 or 0.0.0.0:8765"
-            )
-        return text if m["host"] else f"{_LOOPBACK}:{int(m['port'])}"
+        return normalise_listen(v, example_port=8765)
 
     def address(self) -> tuple[str, int]:
         """``listen`` as (host without IPv6 brackets, port; 0 picks a free one).
@@ -53,5 +39,4 @@ class FoxgloveWsConfig(Section):
         """
         if self.listen is None:
             raise ValueError("foxglove_ws.listen is not set: the live view has no address to listen on")
-        host, _, port = self.listen.rpartition(":")
-        return host.removeprefix("[").removesuffix("]"), int(port)
+        return split_host_port(self.listen)

@@ -8,6 +8,7 @@ from typing import Any
 
 from pydantic import Field, field_validator, model_validator
 
+from dronekey.daemon.config.listen_address import split_host_port
 from dronekey.daemon.config.section import Seconds, Section
 
 __all__ = ["SapientConfig"]
@@ -104,8 +105,7 @@ class SapientConfig(Section):
         """
         if self.connect is None:
             raise ValueError("sapient.connect is not set: the SAPIENT output has no node to connect to")
-        host, _, port = self.connect.rpartition(":")
-        return host.removeprefix("[").removesuffix("]"), int(port)
+        return split_host_port(self.connect)
 
     def resolved_node_id(self, camera_id: str) -> str:
         """``node_id``, or a UUID derived from the camera id (the same node across restarts)."""
