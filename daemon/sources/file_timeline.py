@@ -15,8 +15,11 @@ Shared by the file readers (OpenCV's and PyAV's) so both count corrupt frames th
 from __future__ import annotations
 
 import logging
+from pathlib import Path
 
-__all__ = ["MAX_COUNTED_GAP_S", "PTS_GRID_TOLERANCE", "FileTimeline"]
+from dronekey.daemon.sources.base import ReadResult, SourceOpenError
+
+__all__ = ["MAX_COUNTED_GAP_S", "PTS_GRID_TOLERANCE", "FileTimeline", "FirstFramePeek"]
 
 log = logging.getLogger(__name__)
 
@@ -87,3 +90,36 @@ class FileTimeline:
             t_ns = self._last_t_ns + round(1e9 / (self.fps or 30.0))
         self._last_t_ns = t_ns
         return t_ns
+
+
+class FirstFramePeek:
+    """The file readers' first frame, decoded at ``open`` and handed out by the first ``read``.
+
+    Decoding it at open gives the frame size before the pipeline is built, and turns a file that
+    holds no decodable frame into an open error. The reader provides ``path``, ``close()`` and
+    ``_decode_next()``, and sets ``_peeked = None`` and ``_warned_truncated = False`` at init.
+    """
+
+    path: Path
+    _peeked: ReadResult | None
+    _warned_truncated: bool
+    _size: tuple[int, int] | None
+
+    def _peek_first_frame(self, cut: str | None) -> None:
+        """Decode the first frame; ``cut`` is the file's truncation, if any (``truncation``)."""
+        first = self._decode_next()
+        if first.bgr is None:
+            self.close()
+            why = f": the file is truncated ({cut})" if cut else ""
+            raise SourceOpenError(f"{self.path} holds no decodable video frame{why}")
+        if cut and not self._warned_truncated:  # said once, not on every pass of --loop
+            log.warning("%s is truncated (%s): reading the frames it holds", self.path, cut)
+            self._warned_truncated = True
+        self._size = (first.bgr.shape[1], first.bgr.shape[0])
+        self._peeked = first
+
+    def read(self) -> ReadResult:
+        if self._peeked is not None:
+            result, self._peeked = self._peeked, None
+            return result
+        return self._decode_next()

@@ -25,7 +25,7 @@ import numpy as np
 
 from dronekey.daemon.config.source import NetworkSettings, V4l2Settings
 from dronekey.daemon.sources.base import FrameReader, ReadResult, SourceOpenError, valid_bgr
-from dronekey.daemon.sources.file_timeline import FileTimeline
+from dronekey.daemon.sources.file_timeline import FileTimeline, FirstFramePeek
 from dronekey.daemon.sources.sidecar import sidecar_camera
 from dronekey.daemon.sources.stream_errors import explain_open_failure
 from dronekey.daemon.sources.truncation import truncation
@@ -111,7 +111,7 @@ class _CaptureReader(FrameReader):
         return ReadResult(lost=True)
 
 
-class VideoFileReader(_CaptureReader):
+class VideoFileReader(FirstFramePeek, _CaptureReader):
     """A recorded video file, read in order and stamped with its presentation timestamps."""
 
     live = False
@@ -142,22 +142,7 @@ class VideoFileReader(_CaptureReader):
         self._cap = cap
         self._remember_format(cap)
         self._timeline.reset(self._fps)
-        first = self._decode_next()
-        if first.bgr is None:
-            self.close()
-            why = f": the file is truncated ({cut})" if cut else ""
-            raise SourceOpenError(f"{self.path} holds no decodable video frame{why}")
-        if cut and not self._warned_truncated:  # said once, not on every pass of --loop
-            log.warning("%s is truncated (%s): reading the frames it holds", self.path, cut)
-            self._warned_truncated = True
-        self._size = (first.bgr.shape[1], first.bgr.shape[0])
-        self._peeked = first
-
-    def read(self) -> ReadResult:
-        if self._peeked is not None:
-            result, self._peeked = self._peeked, None
-            return result
-        return self._decode_next()
+        self._peek_first_frame(cut)
 
     def _decode_next(self) -> ReadResult:
         assert self._cap is not None, "read() before open()"

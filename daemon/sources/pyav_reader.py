@@ -39,7 +39,7 @@ import numpy as np
 
 from dronekey.daemon.config.source import NetworkSettings
 from dronekey.daemon.sources.base import FrameReader, ReadResult, SourceOpenError
-from dronekey.daemon.sources.file_timeline import FileTimeline
+from dronekey.daemon.sources.file_timeline import FileTimeline, FirstFramePeek
 from dronekey.daemon.sources.opencv_readers import redact_url
 from dronekey.daemon.sources.sidecar import sidecar_camera
 from dronekey.daemon.sources.truncation import truncation
@@ -149,7 +149,7 @@ def _bgr(frame: av.VideoFrame) -> np.ndarray:
     return frame.to_ndarray(format="bgr24")
 
 
-class PyAVFileReader(_PyAVReader):
+class PyAVFileReader(FirstFramePeek, _PyAVReader):
     """A recorded video file through PyAV, read in order and stamped with its presentation times."""
 
     live = False
@@ -176,22 +176,7 @@ class PyAVFileReader(_PyAVReader):
             raise SourceOpenError(f"cannot open {self.path} as a video: FFmpeg (PyAV) says {exc}") from None
         self._attach(container)
         self._timeline.reset(self._fps)
-        first = self._decode_next()
-        if first.bgr is None:
-            self.close()
-            why = f": the file is truncated ({cut})" if cut else ""
-            raise SourceOpenError(f"{self.path} holds no decodable video frame{why}")
-        if cut and not self._warned_truncated:  # said once, not on every pass of --loop
-            log.warning("%s is truncated (%s): reading the frames it holds", self.path, cut)
-            self._warned_truncated = True
-        self._size = (first.bgr.shape[1], first.bgr.shape[0])
-        self._peeked = first
-
-    def read(self) -> ReadResult:
-        if self._peeked is not None:
-            result, self._peeked = self._peeked, None
-            return result
-        return self._decode_next()
+        self._peek_first_frame(cut)
 
     def _decode_next(self) -> ReadResult:
         failures = 0
