@@ -35,7 +35,7 @@ from dronekey.sim_replay.presets import PRESETS, Preset, preset_camera
 from dronekey.sim_replay.swarm import DronePlan, swarm_plans
 from dronekey.sim_replay.synthetic_sequence import (
     SequenceConditions,
-    _background_source,
+    background_source,
     style_seed_for,
 )
 
@@ -206,7 +206,7 @@ def build_scene(
         background="procedural" if background is None else background,
         range_scale=range_scale,
     )
-    source = _background_source(conditions.background, backgrounds)
+    source = background_source(conditions.background, backgrounds)
     times = np.arange(frames) / p.fps
     scene_drones = [
         _scene_drone(plan, times, p.fps, conditions) for plan in _plans(p, seed, n_drones, range_scale)

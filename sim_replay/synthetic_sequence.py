@@ -49,6 +49,7 @@ __all__ = [
     "RenderedFrame",
     "SequenceConditions",
     "SyntheticSequence",
+    "background_source",
     "build_sequence",
     "style_seed_for",
 ]
@@ -252,7 +253,7 @@ class SyntheticSequence:
             yield RenderedFrame(img, FrameRecord(i, round(t_s * 1e9), "", w, h, None))
 
 
-def _background_source(kind: str, folder: str | Path | None) -> BackgroundSource:
+def background_source(kind: str, folder: str | Path | None) -> BackgroundSource:
     if kind == "photos":
         if folder is not None:
             raise ValueError(
@@ -362,7 +363,7 @@ def build_sequence(
         background="procedural" if background is None else background,
         range_scale=range_scale,
     )
-    source = _background_source(conditions.background, backgrounds)
+    source = background_source(conditions.background, backgrounds)
     return SyntheticSequence(
         p, seed, frames, preset_camera(width, height, p.hfov_deg), load_spec(p.drone), source, conditions
     )
