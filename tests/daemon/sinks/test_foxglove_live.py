@@ -133,7 +133,9 @@ def test_a_viewer_that_never_reads_does_not_slow_the_sink():
     stop.set()
     sink.close()
     viewer.join(5)
-    assert per_frame_ms < 50, per_frame_ms  # JPEG encoding dominates; logging never waits for the viewer
+    # JPEG encoding dominates (milliseconds); a sink that waited for this viewer would never finish.
+    # The bound is generous so that a loaded machine does not count.
+    assert per_frame_ms < 500, per_frame_ms
     assert sink.health()["file"] is None and sink.message_counts["/dronekey/annotations"] == 0
 
 

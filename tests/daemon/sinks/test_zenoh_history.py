@@ -260,10 +260,11 @@ def test_a_subscriber_that_never_reads_does_not_stall_the_sink():
         process.kill()
         process.wait(timeout=10)
     assert health["state"] == "open" and health["published"] == 3 * n_frames
-    # Generous bounds on a shared machine (measured: 1.4 s, slowest frame 15 ms): the sink keeps up
-    # with a 30 fps pipeline many times over. With congestion control BLOCK a frame takes 5 s.
+    # Bounds from the mechanism, not the machine (measured idle: 1.4 s, slowest frame 15 ms): the sink
+    # keeps up with a 30 fps pipeline, and no frame waits for the subscriber (with congestion control
+    # BLOCK a frame takes 5 s).
     figures = f"{n_frames} frames in {elapsed_s:.2f} s, slowest {slowest_s * 1e3:.1f} ms"
-    assert elapsed_s < n_frames / 30.0 / 2 and slowest_s < 0.5, figures
+    assert elapsed_s < n_frames / 30.0 and slowest_s < 2.5, figures
 
 
 def test_attachment_encoding_and_settings():
