@@ -67,12 +67,21 @@ PipelineFactory = Callable[[CameraModel, DaemonConfig], Pipeline]
 
 
 def default_pipeline_factory(camera: CameraModel, config: DaemonConfig) -> Pipeline:
-    """The tracking pipeline with the configured model, drone and inference threads."""
+    """The tracking pipeline with the configured model, drone, inference threads and search."""
     from dronekey.pipeline import TrackingPipeline
+    from dronekey.tracking.tracker_config import TrackerConfig
 
-    m = config.model
+    m, t = config.model, config.tracking
     return TrackingPipeline(
-        camera, model_path=m.path, drone=m.drone, threads=m.threads, mirror_average=m.mirror_average
+        camera,
+        model_path=m.path,
+        drone=m.drone,
+        threads=m.threads,
+        mirror_average=m.mirror_average,
+        tracker=TrackerConfig(max_tracks=t.max_tracks),
+        search_every=t.search_every,
+        search_more_every=t.search_more_every,
+        max_search_candidates=t.max_search_candidates,
     )
 
 

@@ -9,12 +9,12 @@ prediction is the prior that turns the detection to the track's front (the headi
 evidence the tracker weighs), undoes the network's other keypoint-order flips (``keypoint_order``)
 and picks between the two IPPE solutions. The localiser then searches the frame outside the live
 tracks' regions: with its full budget (``LocalizerConfig.max_candidates``) when no confirmed track
-was measured this frame and every ``search_every`` frames, and with ``max_search_candidates`` on
-every other frame while fewer than ``TrackerConfig.max_tracks`` tracks are confirmed, so a second
-drone is found within frames of entering the view. Every candidate that holds a drone becomes a
-measurement of its own, so each starts a tentative hypothesis and only the ones whose evidence
-holds are confirmed. The tracker assigns all of the frame's poses to its tracks at once
-(Hungarian, ``dronekey.tracking.tracker``). Every detection must pass the plausibility gate
+was measured this frame and every ``search_every`` frames, and with ``max_search_candidates`` every
+``search_more_every`` frames while fewer than ``TrackerConfig.max_tracks`` tracks are confirmed, so
+a second drone is found within a fifth of a second of entering the view. Every candidate that holds
+a drone becomes a measurement of its own, so each starts a tentative hypothesis and only the ones
+whose evidence holds are confirmed. The tracker assigns all of the frame's poses to its tracks at
+once (Hungarian, ``dronekey.tracking.tracker``). Every detection must pass the plausibility gate
 (``dronekey.perception.plausibility``) before its pose reaches the tracker.
 """
 
@@ -223,10 +223,15 @@ class TrackingPipeline:
         found; 0 never searches while tracking. A search costs about 20-60 ms on the 2-core box
         (saliency, up to 6 crops and their mirrors, refines), so every 30 frames (1 s) keeps it
         to 1-2 ms per frame.
-    max_search_candidates : the per-frame budget of the search for more drones while fewer than
+    max_search_candidates : the budget of the search for more drones while fewer than
         ``TrackerConfig.max_tracks`` tracks are confirmed (candidates on the live tracks' regions
         are not proposed, so the budget goes to the rest of the frame): 2 keeps the search to a
-        saliency pass and at most two crops (and their refines) per frame, about 10-20 ms here.
+        saliency pass and at most two crops (and their refines), about 15-20 ms here; 0 never
+        searches for more drones while tracking.
+    search_more_every : frames between searches for more drones (1: every frame). A new drone
+        needs only one search to start a track (its crop follows it every frame from then on), so
+        6 (5 Hz at 30 fps) delays its track by at most 0.2 s and cuts the search's cost per frame
+        six-fold (17.4 to about 3 ms a frame on the 2-core box, one drone tracked).
     """
 
     def __init__(
@@ -244,17 +249,11 @@ class TrackingPipeline:
         plausibility: PlausibilityConfig | None = None,
         search_every: int = 30,
         max_search_candidates: int = 2,
+        search_more_every: int = 6,
     ) -> None:
-        if isinstance(search_every, bool) or not isinstance(search_every, int) or search_every < 0:
-            raise ValueError(f"search_every must be an integer >= 0, got {search_every!r}")
-        if (
-            isinstance(max_search_candidates, bool)
-            or not isinstance(max_search_candidates, int)
-            or max_search_candidates < 0
-        ):
-            raise ValueError(f"max_search_candidates must be an integer >= 0, got {max_search_candidates!r}")
-        self.search_every = search_every
-        self.max_search_candidates = max_search_candidates
+        self.search_every = _count("search_every", search_every, 0)
+        self.max_search_candidates = _count("max_search_candidates", max_search_candidates, 0)
+        self.search_more_every = _count("search_more_every", search_more_every, 1)
         self.camera = camera
         self.spec: DroneSpec = drone if isinstance(drone, DroneSpec) else load_spec(drone)
         self.model = KeypointModel(
@@ -327,7 +326,9 @@ class TrackingPipeline:
         full, n_measured = state
         if n_measured == 0 or (self.search_every and self.frames % self.search_every == 0):
             return self.localizer.config.max_candidates, False
-        return (0, True) if full else (self.max_search_candidates, True)
+        if full or self.frames % self.search_more_every:
+            return 0, True
+        return self.max_search_candidates, True
 
     def _track_crops(
         self, frame: Frame, w: int, h: int
@@ -372,6 +373,13 @@ class TrackingPipeline:
         measured_ids = {m.track_id for m in measured}
         recover = taken + [b for p, b in zip(owners, boxes, strict=True) if p.track_id in measured_ids]
         return measured, (recover, taken + boxes), rejections, (full, n_measured)
+
+
+def _count(name: str, value: object, minimum: int) -> int:
+    """``value`` if it is an integer >= ``minimum``; else a ValueError naming ``name``."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
+    return value
 
 
 def _overlaps_frame(box, w: int, h: int) -> bool:

@@ -17,6 +17,7 @@ from dronekey.daemon.config.sapient import SapientConfig
 from dronekey.daemon.config.sbs1 import Sbs1Config
 from dronekey.daemon.config.section import Seconds, Section
 from dronekey.daemon.config.source import SourceConfig
+from dronekey.daemon.config.tracking import TrackingConfig
 from dronekey.daemon.config.zenoh import ZenohConfig
 
 __all__ = ["DaemonConfig", "LogConfig", "SinksConfig"]
@@ -51,6 +52,7 @@ class DaemonConfig(Section):
     source: SourceConfig = Field(default_factory=SourceConfig)
     camera: CameraConfig = Field(default_factory=CameraConfig)
     model: ModelConfig = Field(default_factory=ModelConfig)
+    tracking: TrackingConfig = Field(default_factory=TrackingConfig)
     zenoh: ZenohConfig = Field(default_factory=ZenohConfig)
     mavlink: MavlinkConfig = Field(default_factory=MavlinkConfig)
     sbs1: Sbs1Config = Field(default_factory=Sbs1Config)

@@ -336,7 +336,8 @@ class KeypointModel:
         crops = np.stack([crop_square(frame_bgr, tuple(roi), self.input_size) for roi in rois])
         if not self.mirror_average:
             return self.postprocess(self.inference(self.preprocess(crops)), rois)
-        raw = self.inference(self.preprocess(np.concatenate([crops, crops[:, :, ::-1]])))
+        tensor = self.preprocess(crops)  # the mirrors are flipped after normalising: half the work
+        raw = self.inference(np.concatenate([tensor, tensor[..., ::-1]]))
         return self.postprocess(mirror_averaged(raw, len(rois)), rois)
 
     __call__ = detect

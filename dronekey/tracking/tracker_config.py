@@ -43,8 +43,8 @@ class TrackerConfig:
         ``confirm_window`` frames (update calls); otherwise it is dropped.
     max_coast_s : a track without a measurement for longer than this (seconds) is lost.
     max_tracks : live tracks at most (tentative ones included); measurements that would start more
-        are ignored. The pipeline searches the frame for more drones on every frame while fewer
-        than this many tracks are confirmed.
+        are ignored. The pipeline searches the frame for more drones (every
+        ``search_more_every`` frames) while fewer than this many tracks are confirmed.
     confirm_range_spread : the confirming hits' largest range over their smallest, minus one.
     confirm_presence : their mean presence score at least this (NaN scores are not counted).
     confirm_min_presence : and every one of them at least this: the network must be sure of each

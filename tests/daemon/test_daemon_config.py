@@ -365,3 +365,24 @@ def test_nested_list_errors_are_indexed(tmp_path):
     text = str(info.value)
     assert "source.v4l2.fourcc = 'MJPEG' (from --x): must be 4 ASCII characters" in text
     assert "zenoh.listen[1] = 5" in text
+
+
+# ------------------------------------------------------------------------------------ tracking
+def test_the_tracking_section_reaches_the_pipeline(write_config):
+    from dronekey.daemon.app import default_pipeline_factory
+
+    cfg = write_config(
+        "source: {uri: sim://seq13}\ntracking: {max_tracks: 1, search_more_every: 12, search_every: 0}\n"
+    )
+    config = load_config(cfg, {})
+    pipeline = default_pipeline_factory(CameraModel.from_fov(1920, 1080, 70), config)
+    assert pipeline.poses.tracker.config.max_tracks == 1
+    assert (pipeline.search_more_every, pipeline.search_every, pipeline.max_search_candidates) == (12, 0, 2)
+
+
+def test_a_bad_tracking_value_is_one_line(write_config):
+    cfg = write_config("source: {uri: sim://seq13}\ntracking: {search_more_every: 0}\n")
+    result = run_cli("--config", str(cfg), "--validate-config")
+    assert result.returncode == ExitCode.USAGE
+    (line,) = error_lines(result.stderr)
+    assert "tracking.search_more_every = 0" in line and "greater than or equal to 1" in line

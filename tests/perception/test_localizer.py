@@ -15,7 +15,7 @@ from dronekey.sim_replay.mesh import build_mesh
 from dronekey.sim_replay.presets import preset_camera
 from dronekey.sim_replay.renderer import Lighting, render_drone
 from dronekey.sim_replay.synthetic_sequence import build_sequence
-from dronekey.types import Frame
+from dronekey.types import Frame, TrackStatus
 
 SPEC = load_spec("mini2")
 
@@ -138,3 +138,29 @@ def test_the_search_skips_live_regions_before_its_budget(pipeline):
     assert _contains(only, boxes[1]), (only, boxes)
     with pytest.raises(ValueError, match="max_candidates"):
         localizer.candidate_rois(image, max_candidates=0)
+
+
+@pytest.mark.parametrize("every", [1, 6])
+def test_the_search_for_more_drones_runs_every_search_more_every_frames(every):
+    """Shipped model, one drone (seq13): once its track is confirmed and measured, the search for
+    more drones runs on every ``search_more_every``-th frame only (the full search on every 30th)."""
+    pipeline = TrackingPipeline(preset_camera(), drone=SPEC, search_more_every=every)
+    searched, tracked, confirmed = [], 0, set()
+    for i, rf in enumerate(build_sequence("seq13", seed=101, frames=40)):
+        out = pipeline.process(Frame(i, i * 33_333_333, rf.image))
+        if any(m.track_id in confirmed for m in out.measured):  # a confirmed track measured
+            tracked += 1
+            searched.append(pipeline.frames if "acquire" in out.timings_ms else None)
+        confirmed = {t.track_id for t in out.tracks if t.status == TrackStatus.CONFIRMED}
+    assert tracked >= 20
+    ran = [n for n in searched if n is not None]
+    assert all(n % every == 0 for n in ran), ran
+    assert len(ran) >= tracked // every - 1, (ran, tracked)
+
+
+@pytest.mark.parametrize(
+    ("name", "value"), [("search_more_every", 0), ("search_every", -1), ("max_search_candidates", True)]
+)
+def test_bad_search_settings_name_the_argument(name, value):
+    with pytest.raises(ValueError, match=f"{name} must be an integer"):
+        TrackingPipeline(preset_camera(), drone=SPEC, **{name: value})

@@ -1,0 +1,29 @@
+"""The ``tracking`` section: how many drones the pipeline follows and how often it looks for more."""
+
+from __future__ import annotations
+
+from pydantic import Field
+
+from dronekey.daemon.config.section import Section
+
+__all__ = ["TrackingConfig"]
+
+
+class TrackingConfig(Section):
+    """How many drones are tracked at once and the search for new ones (``TrackingPipeline``)."""
+
+    max_tracks: int = Field(
+        4,
+        ge=1,
+        le=64,
+        description="live tracks at most; the search for more drones stops once this many are confirmed",
+    )
+    search_every: int = Field(
+        30, ge=0, le=100000, description="frames between whole-frame searches while tracking (0: never)"
+    )
+    search_more_every: int = Field(
+        6, ge=1, le=100000, description="frames between searches for more drones while tracking"
+    )
+    max_search_candidates: int = Field(
+        2, ge=0, le=16, description="crops a search for more drones may check (0: no such search)"
+    )
