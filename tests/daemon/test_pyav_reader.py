@@ -28,7 +28,12 @@ from dronekey.daemon.config.source import NetworkSettings, SourceConfig
 from dronekey.daemon.sources import Capture, CaptureStats, SourceOpenError, SourceState, make_reader
 from dronekey.daemon.sources.fallback import FirstThatOpens
 from dronekey.daemon.sources.opencv_readers import NetworkStreamReader, V4l2Reader, VideoFileReader
-from dronekey.daemon.sources.pyav_reader import PyAVFileReader, PyAVStreamReader, pyav_decode_threads
+from dronekey.daemon.sources.pyav_reader import (
+    PyAVFileReader,
+    PyAVStreamReader,
+    bgr_from_frame,
+    pyav_decode_threads,
+)
 from dronekey.types import Frame
 
 
@@ -59,6 +64,24 @@ def test_same_pictures_and_timestamps_as_opencv(media):
     assert [f.t_ns for f in ours] == [f.t_ns for f in theirs]
     for a, b in zip(ours, theirs, strict=True):
         assert np.abs(a.bgr.astype(int) - b.bgr.astype(int)).mean() < 2  # swscale vs OpenCV's conversion
+
+
+def test_bgr_from_planes_matches_swscale_and_other_formats_take_swscale(media):
+    import av
+
+    with av.open(str(media / "h264.mp4")) as container:
+        frame = next(container.decode(video=0))
+    assert frame.format.name == "yuv420p"
+    swscale = frame.to_ndarray(format="bgr24")
+    ours = bgr_from_frame(frame)  # OpenCV's I420 conversion of the planes
+    assert ours.shape == swscale.shape and ours.dtype == np.uint8
+    assert np.abs(ours.astype(int) - swscale.astype(int)).max() <= 3
+    for other in (
+        frame.reformat(format="yuvj420p"),
+        frame.reformat(format="nv12"),
+        frame.reformat(width=319),
+    ):
+        assert np.array_equal(bgr_from_frame(other), other.to_ndarray(format="bgr24"))
 
 
 def test_corrupt_mjpeg_frames_are_counted_and_skipped(media, tmp_path):
