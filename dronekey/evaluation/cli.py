@@ -138,6 +138,7 @@ def _cmd_pose(args: argparse.Namespace) -> int:
             ("mae_angle_deg", "mae_angle_deg"),
             ("rmse_m", "rmse_m"),
             ("mae_abs_m", "mae_abs_m"),
+            ("mae_angle_up_to_twin_deg", "mae_angle_up_to_twin_deg"),
         ):
             for kind in ("filtered", "raw"):
                 errs = [getattr(getattr(r, kind), attr) for r in results]

@@ -35,6 +35,7 @@ METRICS = {
     "mae_angle_deg",
     "rmse_m",
     "mae_abs_m",
+    "mae_angle_up_to_twin_deg",
     "ap_kp",
     "false_track_frames",
     "false_tracks_per_1000_frames",

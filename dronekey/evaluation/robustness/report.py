@@ -42,6 +42,7 @@ _COLUMNS = (
     ("MAE-ang", "deg", "mae_angle_deg", "{:.2f}"),
     ("RMSE", "m", "rmse_m", "{:.3f}"),
     ("MAE-abs", "m", "mae_abs_m", "{:.3f}"),
+    ("modtwin", "deg", "mae_angle_up_to_twin_deg", "{:.2f}"),
     ("detected", "%", "detected_pct", "{:.1f}"),
     ("AP^kp", "%", "ap_kp", "{:.1f}"),
     ("false", "/1k fr", "false_tracks_per_1000_frames", "{:.1f}"),

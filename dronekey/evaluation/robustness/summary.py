@@ -4,7 +4,8 @@ Per sequence and per group (a frame-weighted average over the scored frames, ``s
 
 - detected %: annotated frames with a drone's track, percent of the annotated frames;
 - MAE-angle (deg), RMSE (m), MAE-absolute (m): the paper's errors (``evaluation.pose.pose_errors``)
-  of the drone's track over the detected frames;
+  of the drone's track over the detected frames, and MAE-angle up to the heading twin (front and
+  back set aside);
 - AP^kp (percent): COCO keypoint AP of the pipeline's best detection of every annotated frame (its
   presence as the score; a frame without detection is a miss) against the annotated keypoints,
   as ``dronekey-eval pose`` computes it (full-frame pixels, OKS area = annotated box area);
@@ -38,11 +39,11 @@ def summarise(scores: Sequence[SequenceScores]) -> dict:
     Returns
     -------
     dict with ``sequences``, ``frames`` (scored), ``detected_frames``, ``detected_pct``,
-    ``mae_angle_deg``, ``rmse_m``, ``mae_abs_m``, ``ap_kp`` (percent), ``false_track_frames``,
-    ``false_tracks_per_1000_frames``, ``false_track_ids``, ``confident_wrong_heading_frames``,
-    ``confident_wrong_heading_pct``, ``wrong_heading_frames`` and ``wrong_heading_pct`` (any
-    confidence); figures that need a drone sequence are None without one, and a figure
-    with no frame to average is None.
+    ``mae_angle_deg``, ``rmse_m``, ``mae_abs_m``, ``mae_angle_up_to_twin_deg``, ``ap_kp``
+    (percent), ``false_track_frames``, ``false_tracks_per_1000_frames``, ``false_track_ids``,
+    ``confident_wrong_heading_frames``, ``confident_wrong_heading_pct``, ``wrong_heading_frames``
+    and ``wrong_heading_pct`` (any confidence); figures that need a drone sequence are None without
+    one, and a figure with no frame to average is None.
     """
     frames = sum(s.frames for s in scores)
     false_frames = sum(int(s.false_frame.sum()) for s in scores)
@@ -56,6 +57,7 @@ def summarise(scores: Sequence[SequenceScores]) -> dict:
         "mae_angle_deg": None,
         "rmse_m": None,
         "mae_abs_m": None,
+        "mae_angle_up_to_twin_deg": None,
         "ap_kp": None,
         "false_track_frames": false_frames,
         "false_tracks_per_1000_frames": rounded(
@@ -84,6 +86,7 @@ def summarise(scores: Sequence[SequenceScores]) -> dict:
         mae_angle_deg=rounded(errors.mae_angle_deg),
         rmse_m=rounded(errors.rmse_m),
         mae_abs_m=rounded(errors.mae_abs_m),
+        mae_angle_up_to_twin_deg=rounded(errors.mae_angle_up_to_twin_deg),
         ap_kp=rounded(100.0 * ap, 2),
         confident_wrong_heading_frames=confident_wrong,
         confident_wrong_heading_pct=rounded(_pct(confident_wrong, n_ann), 2),
