@@ -47,12 +47,16 @@ class KeypointDetection:
     heading_p : probability in [0.5, 1] the network gives to ``keypoints_px`` being in the spec's
         order rather than its 180-degree twin (front and back exchanged); NaN for a model without a
         front/back head. ``heading_confidence`` is 2 p - 1: 0 a coin flip, 1 certain.
+    spread_scale : the factor by which the model's spread calibration scaled the keypoints about
+        their centroid (``dronekey.perception.spread_calibration``; 1: none), so the network's own
+        spread is the keypoints' over ``spread_scale``.
     """
 
     keypoints_px: np.ndarray
     presence: float
     roi: tuple[int, int, int]
     heading_p: float = float("nan")
+    spread_scale: float = 1.0
 
     @property
     def heading_confidence(self) -> float:

@@ -33,6 +33,7 @@ import psutil
 
 from dronekey.geometry.crop import ROI, crop_square, from_normalised
 from dronekey.perception.keypoint_order import HEADING_TWIN
+from dronekey.perception.spread_calibration import SpreadCalibration
 from dronekey.types import KeypointDetection
 
 __all__ = [
@@ -201,6 +202,10 @@ class KeypointModel:
         two answers, the mirrored one with its keypoints' sides exchanged back (1 <-> 4, 2 <-> 3).
         On 1,500 validation crops this cut the median keypoint error by a fifth (4.94 -> 3.90 px
         of 128) for about 1.6x the inference time (docs/model.md).
+    spread_calibration : SpreadCalibration, optional
+        How the keypoints' spread is de-compressed (``dronekey.perception.spread_calibration``);
+        default: the one in the model's metadata, none if it has none. ``SpreadCalibration()``
+        turns it off.
 
     Attributes
     ----------
@@ -219,6 +224,7 @@ class KeypointModel:
         providers: Sequence[str] | None = None,
         threads: int | None = None,
         mirror_average: bool = False,
+        spread_calibration: SpreadCalibration | None = None,
     ) -> None:
         self.mirror_average = bool(mirror_average)
         self.path = Path(path) if path is not None else default_model_path()
@@ -271,6 +277,12 @@ class KeypointModel:
         self.mean = tuple(float(v) for v in norm["mean"])
         self.std = tuple(float(v) for v in norm["std"])
         self.keypoint_names = list(self.metadata["keypoint_names"])
+        if spread_calibration is None:
+            try:
+                spread_calibration = SpreadCalibration.from_metadata(self.metadata)
+            except ValueError as exc:
+                raise ModelFormatError(f"{self.path}: {exc}") from None
+        self.spread_calibration = spread_calibration
         LOG.info(
             "keypoint model %s (%s, %d px input) on execution providers %s, %d threads",
             self.path.name,
@@ -317,16 +329,18 @@ class KeypointModel:
 
     def postprocess(self, raw: RawOutputs, rois: Sequence[ROI]) -> list[KeypointDetection]:
         """Map each crop's keypoints back to full-frame pixels through its ``roi`` (x0, y0, side), in
-        the front/back head's order (``in_heading_order``)."""
+        the front/back head's order (``in_heading_order``), their spread calibrated
+        (``spread_calibration``)."""
         if len(rois) != raw.keypoints.shape[0]:
             raise ValueError(f"rois must hold one roi per crop ({raw.keypoints.shape[0]}), got {len(rois)}")
         raw = in_heading_order(raw)
+        keypoints, scales = self.spread_calibration.apply(raw.keypoints)
         heading = raw.heading if raw.heading is not None else np.full(len(rois), np.nan)
         detections = []
-        for keypoints, presence, p, roi in zip(raw.keypoints, raw.presence, heading, rois, strict=True):
+        for kp_n, presence, p, scale, roi in zip(keypoints, raw.presence, heading, scales, rois, strict=True):
             roi = tuple(int(v) for v in roi)
-            kp = from_normalised(keypoints, roi)
-            detections.append(KeypointDetection(kp, float(presence), roi, float(p)))
+            kp = from_normalised(kp_n, roi)
+            detections.append(KeypointDetection(kp, float(presence), roi, float(p), float(scale)))
         return detections
 
     def detect(self, frame_bgr: np.ndarray, rois: Sequence[ROI]) -> list[KeypointDetection]:

@@ -10,7 +10,8 @@ propellers obey the geometry the network was trained on, whatever it looks like:
   ``frame_margin`` of its own spread; its centre never is;
 - **no collapsed pairs**: the shortest keypoint pair is at least ``min_pair_frac`` of the longest
   (and ``min_pair_px``); four hubs seen from anywhere but exactly edge-on are apart;
-- **spread fits the crop**: the longest pair over the crop side lies in ``spread_in_crop``. Every
+- **spread fits the crop**: the network's own longest pair (before ``spread_calibration``) over the
+  crop side lies in ``spread_in_crop``. Every
   crop is cut for a drone (on a track's predicted pose, or again on the keypoints a search crop
   found), framed as in training: 1.3 x the drone's box, the hubs' box grown by a propeller radius.
   For a real drone the network's spread then comes back at 0.44-0.55 of the side whatever its
@@ -113,8 +114,9 @@ def check_detection(
     lo, hi = cfg.spread_in_crop
     if side <= cfg.small_crop_px:
         lo = cfg.small_crop_min_spread
-    if not lo <= spread / side <= hi:
-        return f"keypoint spread {spread / side:.2f} of the crop side is outside [{lo}, {hi}]"
+    own = spread / side / detection.spread_scale  # the network's own answer, before calibration
+    if not lo <= own <= hi:
+        return f"keypoint spread {own:.2f} of the crop side is outside [{lo}, {hi}]"
     return None
 
 

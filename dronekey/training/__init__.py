@@ -15,4 +15,5 @@
 ``export``          network -> fp32 ONNX with the runtime's metadata
 ``quantize``        fp32 ONNX -> static int8 (QDQ), calibrated on crops
 ``onnx_weights``    an exported model's weights read back into the network (fine-tuning)
+``spread_fit``      ``dronekey-calibrate-spread``: the model's spread calibration, fitted and stored
 """

@@ -11,7 +11,7 @@ from __future__ import annotations
 import importlib.util
 import sys
 
-__all__ = ["export_main", "train_main"]
+__all__ = ["calibrate_spread_main", "export_main", "train_main"]
 
 TRAIN_EXTRA_HINT = "pip install 'dronekey[train]' (torch==2.13.0, the CPU wheel)"
 
@@ -39,5 +39,16 @@ def export_main(argv: list[str] | None = None) -> int:
         print(message, file=sys.stderr)
         return 2
     from dronekey.training.export_cli import main  # torch from here on
+
+    return main(argv)
+
+
+def calibrate_spread_main(argv: list[str] | None = None) -> int:
+    """``dronekey-calibrate-spread`` (needs the ``onnx`` package of the train extra, not torch)."""
+    if importlib.util.find_spec("onnx") is None:
+        hint = f"needs onnx, which the runtime install leaves out: {TRAIN_EXTRA_HINT}"
+        print(f"dronekey-calibrate-spread: {hint}", file=sys.stderr)
+        return 2
+    from dronekey.training.spread_fit import main
 
     return main(argv)
