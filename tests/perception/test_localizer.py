@@ -164,3 +164,18 @@ def test_the_search_for_more_drones_runs_every_search_more_every_frames(every):
 def test_bad_search_settings_name_the_argument(name, value):
     with pytest.raises(ValueError, match=f"{name} must be an integer"):
         TrackingPipeline(preset_camera(), drone=SPEC, **{name: value})
+
+
+def test_of_two_tracks_on_one_drone_the_wider_reading_wins():
+    """A track whose crop closed in on its drone reads it small; another track's crop that frames
+    the whole drone reads it wider and takes the measurement (more than 10 % wider), else the
+    better-ranked track keeps it; a drone elsewhere is untouched."""
+    from dronekey.pipeline import _one_reading_per_drone
+
+    narrowed = ("track 2", None, (100.0, 100.0, 30.0, 30.0))  # ranked first (confirmed), read small
+    framing = ("track 4", None, (95.0, 95.0, 45.0, 45.0))  # the same drone, read 50 % wider
+    elsewhere = ("track 7", None, (900.0, 500.0, 40.0, 40.0))
+    kept = _one_reading_per_drone([narrowed, framing, elsewhere])
+    assert [k[0] for k in kept] == ["track 4", "track 7"]
+    similar = ("track 5", None, (99.0, 99.0, 32.0, 32.0))  # under 10 % wider: the ranking decides
+    assert [k[0] for k in _one_reading_per_drone([narrowed, similar])] == ["track 2"]
