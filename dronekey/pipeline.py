@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from dronekey.checks import int_at_least
 from dronekey.geometry.camera import CalibrationError, CameraModel
 from dronekey.geometry.crop import CropPolicy
 from dronekey.geometry.drone_spec import DroneSpec, load_spec
@@ -251,9 +252,9 @@ class TrackingPipeline:
         max_search_candidates: int = 2,
         search_more_every: int = 6,
     ) -> None:
-        self.search_every = _count("search_every", search_every, 0)
-        self.max_search_candidates = _count("max_search_candidates", max_search_candidates, 0)
-        self.search_more_every = _count("search_more_every", search_more_every, 1)
+        self.search_every = int_at_least("search_every", search_every, 0)
+        self.max_search_candidates = int_at_least("max_search_candidates", max_search_candidates, 0)
+        self.search_more_every = int_at_least("search_more_every", search_more_every, 1)
         self.camera = camera
         self.spec: DroneSpec = drone if isinstance(drone, DroneSpec) else load_spec(drone)
         self.model = KeypointModel(
@@ -376,13 +377,6 @@ class TrackingPipeline:
         measured_ids = {m.track_id for m in measured}
         recover = taken + [b for p, b in zip(owners, boxes, strict=True) if p.track_id in measured_ids]
         return measured, (recover, taken + boxes), rejections, (full, n_measured)
-
-
-def _count(name: str, value: object, minimum: int) -> int:
-    """``value`` if it is an integer >= ``minimum``; else a ValueError naming ``name``."""
-    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
-    return value
 
 
 def _one_reading_per_drone(found: list) -> list:

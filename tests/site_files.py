@@ -1,4 +1,5 @@
-"""Site files (docs/design.md §5.4) for tests: ``from site_files import write_site``.
+"""Site files (docs/design.md §5.4) for tests: ``from site_files import write_site``, and
+``render_cameras``: a real ``dronekey-sim --cameras N`` render with its site file.
 
 Cameras are given as (id, yaw_deg, pitch_deg, t_site_cam_m): a camera whose optical axis has that
 heading (clockwise from north) and elevation, no roll, in the site's ENU frame.
@@ -6,6 +7,8 @@ heading (clockwise from north) and elevation, no roll, in the site's ENU frame.
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -41,3 +44,11 @@ def write_site(path: Path, cameras, origin=None) -> Path:
     doc = SiteDocument.model_validate({"format": SITE_FORMAT, "origin": origin, "cameras": entries})
     save_site(doc, path)
     return path
+
+
+def render_cameras(out: Path, frames: int, cameras: int = 2, preset: str = "seq13") -> Path:
+    """``dronekey-sim --cameras N --preset P --frames F --out OUT``: cam0/ .. and site.json in ``out``."""
+    sim = Path(sys.executable).parent / "dronekey-sim"
+    command = [sim, "--cameras", str(cameras), "--preset", preset, "--frames", str(frames), "--out", str(out)]
+    subprocess.run(command, check=True, capture_output=True, timeout=120)
+    return out

@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 from dronekey.bench.arguments import positive_float, positive_int
@@ -55,38 +56,46 @@ def _setup(args: argparse.Namespace) -> BenchSetup:
     return BenchSetup(args.source, args.calib, args.model, args.decode_threads, args.model_threads)
 
 
-def _run_pipeline_command(args: argparse.Namespace) -> int:
-    quiet_native_logs(verbose=False)  # FFmpeg's and OpenCV's own messages stay off stderr, as in the daemon
+def _run_bench(name: str, run: Callable) -> tuple[dict | None, int]:
+    """``run(signals)`` with FFmpeg's and OpenCV's own messages off stderr (as in the daemon) and
+    SIGINT / SIGTERM watched: (its report, 0), or (None, exit status) after one error line."""
+    quiet_native_logs(verbose=False)
     signals = signal_monitor(install=True)
     try:
-        report = run_pipeline_bench(
+        return run(signals), 0
+    except BenchError as exc:
+        print(f"dronekey-bench {name}: error: {exc}", file=sys.stderr)
+        return None, exc.exit_code if isinstance(exc, BenchInterruptedError) else 1
+    finally:
+        signals.finished()
+
+
+def _run_pipeline_command(args: argparse.Namespace) -> int:
+    report, status = _run_bench(
+        "pipeline",
+        lambda signals: run_pipeline_bench(
             _setup(args),
             frames=args.frames,
             latency_frames=args.latency_frames,
             warmup=args.warmup,
             signals=signals,
-        )
-    except BenchError as exc:
-        print(f"dronekey-bench pipeline: error: {exc}", file=sys.stderr)
-        return exc.exit_code if isinstance(exc, BenchInterruptedError) else 1
-    finally:
-        signals.finished()
+        ),
+    )
+    if report is None:
+        return status
     print(json.dumps(report, indent=2) if args.json else _table(report, PIPELINE_TABLE_KEYS, 23))
     return 0
 
 
 def _run_soak_command(args: argparse.Namespace) -> int:
-    quiet_native_logs(verbose=False)
-    signals = signal_monitor(install=True)
-    try:
-        report = run_soak(
+    report, status = _run_bench(
+        "soak",
+        lambda signals: run_soak(
             _setup(args), frames=args.frames, warmup=args.warmup, sample_s=args.sample_s, signals=signals
-        )
-    except BenchError as exc:
-        print(f"dronekey-bench soak: error: {exc}", file=sys.stderr)
-        return exc.exit_code if isinstance(exc, BenchInterruptedError) else 1
-    finally:
-        signals.finished()
+        ),
+    )
+    if report is None:
+        return status
     report["max_growth_percent"] = args.max_growth
     report["ok"] = report["rss_growth_percent"] <= args.max_growth
     print(json.dumps(report, indent=2) if args.json else _table(report, SOAK_TABLE_KEYS, 20))
@@ -181,15 +190,14 @@ def _camera_lines(report: dict) -> str:
 
 
 def _run_cameras_command(args: argparse.Namespace) -> int:
-    quiet_native_logs(verbose=False)
-    signals = signal_monitor(install=True)
-    try:
-        report = run_cameras_bench(_setup(args), count=args.count, seconds=args.seconds, signals=signals)
-    except BenchError as exc:
-        print(f"dronekey-bench cameras: error: {exc}", file=sys.stderr)
-        return exc.exit_code if isinstance(exc, BenchInterruptedError) else 1
-    finally:
-        signals.finished()
+    report, status = _run_bench(
+        "cameras",
+        lambda signals: run_cameras_bench(
+            _setup(args), count=args.count, seconds=args.seconds, signals=signals
+        ),
+    )
+    if report is None:
+        return status
     print(json.dumps(report, indent=2) if args.json else _camera_lines(report))
     return 0
 

@@ -136,7 +136,9 @@ def fit_spread_calibration(
 
 def write_calibrated_model(model_path: str | Path, out: str | Path, calibration: SpreadCalibration) -> Path:
     """Copy ``model_path`` to ``out`` with ``calibration`` in its metadata (other entries kept)."""
-    import onnx  # the train extra; the runtime reads the metadata through onnxruntime
+    # onnx is the train extra (training.export.write_metadata would bring torch too, and drops the
+    # other entries); the runtime reads the metadata through onnxruntime.
+    import onnx
 
     model_path, out = Path(model_path), Path(out)
     model = onnx.load(str(model_path))

@@ -16,35 +16,19 @@ import pytest
 import zenoh
 from daemon_media import free_port
 from json_checks import schema_errors
+from site_files import render_cameras
 
 from dronekey.daemon import messages
 from dronekey.daemon.errors import ExitCode
 
 BIN = Path(sys.executable).parent
-FRAMES = "24"  # 0.8 s of flight, looped by the daemons
+FRAMES = 24  # 0.8 s of flight, looped by the daemons
 
 
 @pytest.fixture(scope="module")
 def two_cameras(tmp_path_factory) -> Path:
     """``dronekey-sim --cameras 2 --preset seq13``: cam0/, cam1/ and site.json."""
-    out = tmp_path_factory.mktemp("fleet")
-    subprocess.run(
-        [
-            BIN / "dronekey-sim",
-            "--cameras",
-            "2",
-            "--preset",
-            "seq13",
-            "--frames",
-            str(FRAMES),
-            "--out",
-            str(out),
-        ],
-        check=True,
-        capture_output=True,
-        timeout=120,
-    )
-    return out
+    return render_cameras(tmp_path_factory.mktemp("fleet"), FRAMES)
 
 
 def _router(port: int) -> zenoh.Session:

@@ -7,6 +7,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+from site_files import render_cameras
+
 BIN = Path(sys.executable).parent
 
 
@@ -17,22 +19,7 @@ def _eval(*args: str) -> subprocess.CompletedProcess:
 
 
 def test_fusion_eval_reports_each_camera_and_the_fused_tracks(tmp_path):
-    subprocess.run(
-        [
-            BIN / "dronekey-sim",
-            "--cameras",
-            "2",
-            "--preset",
-            "seq13",
-            "--frames",
-            "12",
-            "--out",
-            str(tmp_path),
-        ],
-        check=True,
-        capture_output=True,
-        timeout=120,
-    )
+    render_cameras(tmp_path, 12)
     result = _eval(str(tmp_path), "--json")
     assert result.returncode == 0, result.stderr
     report = json.loads(result.stdout)

@@ -25,8 +25,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-
+from dronekey.checks import int_at_least
 from dronekey.sim_replay.drone_look import LED_MODES
 from dronekey.sim_replay.presets import PRESETS
 from dronekey.sim_replay.synthetic_sequence import BACKGROUND_KINDS, SyntheticSequence, build_sequence
@@ -47,7 +46,6 @@ __all__ = [
     "TUNING_SEED",
     "VALIDATION_SEED",
     "MatrixEntry",
-    "int_at_least",
     "plan_matrix",
 ]
 
@@ -152,14 +150,6 @@ def _check_choices(name: str, values: Sequence[str], allowed: Iterable[str]) -> 
     if len(set(values)) != len(values):
         raise ValueError(f"{name} must not repeat a value, got {values!r}")
     return values
-
-
-def int_at_least(name: str, value, minimum: int = 1) -> int:
-    """``value`` as an int, checked: an integer (not a bool) >= ``minimum``, else ValueError naming
-    ``name`` and the value."""
-    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < minimum:
-        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
-    return int(value)
 
 
 def plan_matrix(

@@ -12,13 +12,13 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 
+from dronekey.checks import int_at_least
 from dronekey.evaluation.robustness.matrix import (
     DRONE_FREE_SEED_OFFSET,
     REPORTING_SEED,
     TUNING_SEED,
     VALIDATION_SEED,
     MatrixEntry,
-    int_at_least,
     plan_matrix,
 )
 
