@@ -5,7 +5,7 @@ import cv2
 import numpy as np
 import pytest
 
-from dronekey.perception.localizer import _blobs, _max_abs_difference, _median
+from dronekey.perception.localizer import LocalizerConfig, _blobs, _max_abs_difference, _median, propose_rois
 
 
 def reference_blobs(saliency, min_contrast):
@@ -51,3 +51,25 @@ def test_blobs_are_the_reference_blobs():
     corners = np.zeros((64, 64), np.float32)
     corners[:3, :3] = corners[-3:, -3:] = 50.0
     assert _blobs(corners, 12.0) == reference_blobs(corners, 12.0)
+
+
+def test_a_small_moving_blob_gets_a_share_of_the_budget_among_big_static_windows():
+    """Ranked together by contrast x size, a facade's windows took every candidate; the motion map
+    (a static camera) now gets every other one, so a far drone's small moving blob is proposed."""
+    frame = np.full((1080, 1920, 3), 170, np.uint8)
+    for i in range(12):  # dark windows, 80 px, strongly contrasted
+        x, y = 100 + 150 * i, 200 + 300 * (i % 3)
+        frame[y : y + 80, x : x + 80] = 60
+    previous = frame.copy()
+    cv2.rectangle(previous, (930, 640), (960, 648), (110, 110, 110), -1)  # the drone a frame earlier
+    cv2.rectangle(frame, (950, 640), (980, 648), (110, 110, 110), -1)  # a 30 x 8 px grey drone
+    config = LocalizerConfig()
+    _, small = propose_rois(previous, config, 64.0)
+    rois, _ = propose_rois(frame, config, 64.0, small)
+    assert len(rois) == config.max_candidates
+    centres = [(x + s / 2, y + s / 2, s) for x, y, s in rois]
+    assert any(abs(cx - 965) < s / 2 and abs(cy - 644) < s / 2 and s < 300 for cx, cy, s in centres), rois
+    without_motion, _ = propose_rois(frame, config, 64.0)
+    assert not any(
+        abs(x + s / 2 - 965) < s / 2 and abs(y + s / 2 - 644) < s / 2 for x, y, s in without_motion
+    )
