@@ -46,6 +46,7 @@ class TrackRecord:
         self.last_hit_ns = t_ns
         self.hits = 1
         self.frames = 1  # update calls seen, the birth frame included
+        self.misses = 0  # update calls since the last hit
         self.window: deque[bool] = deque([True], maxlen=config.confirm_window)
         self.rotation_misses = 0
         self.branch_evidence = 0.0  # log-odds that the IPPE solution not followed is the right one

@@ -31,7 +31,8 @@ measurement has passed the pipeline's plausibility gate (``dronekey.perception.p
 here, and a frame may bring several: each unmatched one starts its own tentative hypothesis, so a
 false candidate cannot block the true one, and only the hypotheses whose evidence holds confirm.
 A confirmed track without a measurement is COASTING (predicted); one that has coasted longer than
-``max_coast_s`` is reported once as LOST and dropped. Every track that was reported ends with
+``max_coast_s``, or for more than ``coast_frames_per_hit`` frames per hit it has had, is reported
+once as LOST and dropped. Every track that was reported ends with
 exactly one LOST report.
 """
 
@@ -290,6 +291,7 @@ class Tracker:
         track.evidence.append((float(np.linalg.norm(m.t)), score))
         track.hits += 1
         track.frames += 1
+        track.misses = 0
         track.window.append(True)
         track.last_hit_ns = track.t_ns
         track.score = score
@@ -326,6 +328,7 @@ class Tracker:
 
     def _miss(self, track: TrackRecord) -> None:
         track.frames += 1
+        track.misses += 1
         track.window.append(False)
         track.keypoints_px = None
         if track.status is TrackStatus.CONFIRMED:
@@ -333,6 +336,8 @@ class Tracker:
 
     def _is_lost(self, track: TrackRecord) -> bool:
         if track.t_ns - track.last_hit_ns > self.config.max_coast_s * NS_PER_S:
+            return True
+        if track.misses > self.config.coast_frames_per_hit * track.hits:
             return True
         return track.status is TrackStatus.TENTATIVE and track.frames >= self.config.confirm_window
 

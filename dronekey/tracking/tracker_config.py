@@ -42,6 +42,12 @@ class TrackerConfig:
     confirm_hits, confirm_window : a track is confirmed after ``confirm_hits`` hits within its first
         ``confirm_window`` frames (update calls); otherwise it is dropped.
     max_coast_s : a track without a measurement for longer than this (seconds) is lost.
+    coast_frames_per_hit : and a track coasts at most this many frames per measurement it has had:
+        its evidence of being a drone. Clutter that passed confirmation on a few frames was
+        published for a whole ``max_coast_s`` after it (on six tuning sequences with photo
+        backgrounds, 566 of the 758 frames with a false track were coasts), while a drone tracked
+        for seconds keeps the full coast through an occlusion. 4 on the tuning seeds (2 cut the far
+        preset's intermittent detections short; docs/evaluation.md).
     max_tracks : live tracks at most (tentative ones included); measurements that would start more
         are ignored. The pipeline searches the frame for more drones (every
         ``search_more_every`` frames) while fewer than this many tracks are confirmed.
@@ -74,6 +80,7 @@ class TrackerConfig:
     confirm_hits: int = 3
     confirm_window: int = 5
     max_coast_s: float = 1.0
+    coast_frames_per_hit: float = 4.0
     max_tracks: int = 4
     confirm_range_spread: float = 0.5
     confirm_presence: float = 0.6

@@ -198,6 +198,25 @@ def test_coasting_track_is_reported_lost_once_after_max_coast_s():
     assert tracker.track_ids == []
 
 
+def test_a_track_coasts_two_frames_per_hit_it_has_had():
+    """Clutter confirmed on three frames must not be published for a whole second after them,
+    while a drone seen for long keeps the full coast through an occlusion."""
+
+    def misses_before_lost(hits: int) -> int:
+        tracker = Tracker(TrackerConfig(max_coast_s=1.0, coast_frames_per_hit=2.0))
+        for k in range(hits):
+            tracker.update(t_ns(k), [measurement(seen_from_below(0.0), [0.0, 0.0, 4.0])])
+        for k in range(hits, hits + 60):
+            (track,) = tracker.update(t_ns(k), [])
+            if track.status is TrackStatus.LOST:
+                return k - hits
+        raise AssertionError("never lost")
+
+    assert misses_before_lost(3) == 6  # lost at its 7th missed frame
+    assert misses_before_lost(8) == 16
+    assert misses_before_lost(40) == 30  # max_coast_s decides: lost once more than 1 s has passed
+
+
 def test_single_hit_confirmation_confirms_at_birth():
     tracker = Tracker(TrackerConfig(confirm_hits=1, confirm_window=1))
     (track,) = tracker.update(0, [measurement(seen_from_below(0.0), [0.0, 0.0, 4.0])])
