@@ -3,7 +3,9 @@
 Position: information-form least squares, ``x = (sum C_i^-1)^-1 sum C_i^-1 p_i`` with covariance
 ``(sum C_i^-1)^-1``. Each camera's covariance is long along its ray and narrow across it, so two
 cameras at an angle pin the drone where their rays cross: the depth of one comes from the
-bearing of the other. With one camera this is that camera's position (the fallback).
+bearing of the other. With one camera this is that camera's position (the fallback), unless an
+earlier estimate is given as a prior (the fuser's depth memory): then the camera's bearing and the
+prior's depth.
 
 Velocity: the same weights. Orientation: body -> site rotations of the cameras, weighted by the
 inverse of their rotation variance, averaged as quaternions (Markley's eigenvector mean). A drone
@@ -39,14 +41,21 @@ class FusedState:
     heading_confidence: float
 
 
-def _position(observations: Sequence[Observation]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _position(
+    observations: Sequence[Observation], prior: tuple[np.ndarray, np.ndarray] | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     infos = [np.linalg.inv(o.position_cov) for o in observations]
     info = sum(infos)
+    weighted = sum(i @ o.position_m for i, o in zip(infos, observations, strict=True))
+    velocity_cov = np.linalg.inv(info)
+    velocity = velocity_cov @ sum(i @ o.velocity_mps for i, o in zip(infos, observations, strict=True))
+    if prior is not None:
+        prior_info = np.linalg.inv(prior[1])
+        info = info + prior_info
+        weighted = weighted + prior_info @ prior[0]
     cov = np.linalg.inv(info)
     cov = 0.5 * (cov + cov.T)
-    position = cov @ sum(i @ o.position_m for i, o in zip(infos, observations, strict=True))
-    velocity = cov @ sum(i @ o.velocity_mps for i, o in zip(infos, observations, strict=True))
-    return position, velocity, cov
+    return cov @ weighted, velocity, cov
 
 
 def _orientation(observations: Sequence[Observation]) -> tuple[np.ndarray, np.ndarray, float]:
@@ -72,11 +81,17 @@ def _orientation(observations: Sequence[Observation]) -> tuple[np.ndarray, np.nd
     return q, std, heading
 
 
-def fuse_observations(observations: Sequence[Observation]) -> FusedState:
-    """The fused state of observations of one drone at one time (at least one)."""
+def fuse_observations(
+    observations: Sequence[Observation], prior: tuple[np.ndarray, np.ndarray] | None = None
+) -> FusedState:
+    """The fused state of observations of one drone at one time (at least one).
+
+    ``prior``: (position, covariance), site frame, m: an earlier estimate of this drone predicted to
+    this time, weighed in as one more position (not velocity) observation.
+    """
     if not observations:
         raise ValueError("fuse_observations needs at least one observation, got none")
-    position, velocity, cov = _position(observations)
+    position, velocity, cov = _position(observations, prior)
     q, std, heading = _orientation(observations)
     # normalise through a matrix round trip: the eigenvector may carry rounding off the unit sphere
     q = matrix_to_quat_wxyz(quat_wxyz_to_matrix(q))

@@ -47,7 +47,8 @@ class FusedMember:
 class FusedTrack:
     """A fused track at ``t_ns``, site frame (metres, seconds; quaternion body FRD -> site).
 
-    method : ``triangulated`` (two or more cameras) or ``single`` (one camera's position).
+    method : ``triangulated`` (two or more cameras) or ``single`` (one camera's position; its depth
+        leans on the last triangulated one for ``FusionConfig.depth_memory_s``).
     members : the cameras' tracks fused this time (empty on the ``lost`` message).
     """
 
@@ -74,6 +75,7 @@ class _Cluster:
     bound: list[tuple[str, int]] = field(default_factory=list)  # oldest binding first
     hits: int = 0
     last: FusedTrack | None = None
+    last_triangulated: FusedTrack | None = None
 
     def cameras(self) -> set[str]:
         return {camera for camera, _ in self.bound}
@@ -227,8 +229,21 @@ class Fuser:
                     break
         return ended
 
+    def _depth_memory(self, cluster: _Cluster, t_ns: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """The cluster's last triangulated position predicted to ``t_ns`` with its covariance
+        grown by the velocity's uncertainty, while it is at most ``depth_memory_s`` old."""
+        last = cluster.last_triangulated
+        if last is None:
+            return None
+        dt = (t_ns - last.t_ns) * 1e-9
+        if not 0 <= dt <= self.config.depth_memory_s:
+            return None
+        grown = last.position_cov + np.eye(3) * (self.config.velocity_std_mps * dt) ** 2
+        return last.position_m + last.velocity_mps * dt, grown
+
     def _estimate(self, cluster: _Cluster, current: list[Observation], t_ns: int) -> FusedTrack:
-        state = fuse_observations(current)
+        prior = self._depth_memory(cluster, t_ns) if len(current) == 1 else None
+        state = fuse_observations(current, prior)
         statuses = {o.status for o in current}
         if TrackStatus.CONFIRMED in statuses:
             status = TrackStatus.CONFIRMED
@@ -258,4 +273,6 @@ class Fuser:
             members=members,
         )
         cluster.last = fused
+        if fused.method == "triangulated":
+            cluster.last_triangulated = fused
         return fused

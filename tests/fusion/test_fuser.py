@@ -187,3 +187,33 @@ def test_clock_alignment_trusts_synchronised_epoch_clocks():
     assert clock.observe("b", 5_000_000_000, now) == now  # a file's PTS: aligned to arrival
     with pytest.raises(ValueError, match="clock mode"):
         ClockAlignment("ntp")
+
+
+def test_one_camera_keeps_the_depth_of_the_last_triangulation_for_depth_memory_s():
+    """When the second camera loses the drone, the fused track takes the bearing from the camera
+    left and the depth from where the two last put it, predicted with its velocity; after
+    ``depth_memory_s`` the camera's own (biased) depth comes back."""
+    velocity = np.array([1.0, 0.0, 0.0])
+    ray = (DRONE - CAM_A.t_site_cam_m) / np.linalg.norm(DRONE - CAM_A.t_site_cam_m)
+
+    def at(t_s: float) -> np.ndarray:
+        return DRONE + velocity * t_s
+
+    fuser = _fuser(depth_memory_s=2.0)
+    for k in range(3):  # both cameras: triangulated
+        t = int(k * 1e8)
+        fuser.update("camA", camera_track(CAM_A, at(k * 0.1), t_ns=t, v_site=velocity))
+        fuser.update("camB", camera_track(CAM_B, at(k * 0.1), t_ns=t, v_site=velocity))
+        (both,) = fuser.fuse(t)
+    assert both.method == "triangulated"
+    fuser.update("camB", camera_track(CAM_B, at(0.2), t_ns=int(2e8), status=TrackStatus.LOST))
+
+    def alone(t_s: float) -> np.ndarray:
+        biased = at(t_s) + 8.0 * ray  # camera A reads the drone 8 m too far along its ray
+        fuser.update("camA", camera_track(CAM_A, biased, t_ns=int(t_s * 1e9), v_site=velocity))
+        (fused,) = fuser.fuse(int(t_s * 1e9))
+        assert fused.method == "single" and fused.fused_id == both.fused_id
+        return fused.position_m
+
+    assert np.linalg.norm(alone(1.0) - at(1.0)) < 1.0
+    assert np.linalg.norm(alone(3.0) - at(3.0)) == pytest.approx(8.0, abs=0.1)
