@@ -35,10 +35,13 @@ from dronekey.types import KeypointDetection
 __all__ = [
     "Localizer",
     "LocalizerConfig",
+    "Saliency",
     "box_from_keypoints",
     "box_from_pose",
     "box_overlap",
     "propose_rois",
+    "saliency_pass",
+    "select_rois",
 ]
 
 log = logging.getLogger(__name__)
@@ -206,7 +209,11 @@ class Localizer:
         return found[0] if found else None
 
     def acquire_all(
-        self, frame_bgr: np.ndarray, exclude: Sequence[Box] = (), max_candidates: int | None = None
+        self,
+        frame_bgr: np.ndarray,
+        exclude: Sequence[Box] = (),
+        max_candidates: int | None = None,
+        saliency: Saliency | None = None,
     ) -> list[KeypointDetection]:
         """Every candidate of a search outside ``exclude`` that holds a drone, refined, best first.
 
@@ -215,9 +222,10 @@ class Localizer:
         candidates are scored in one batch and those above the presence threshold refined in a
         second; detections of the same object (keypoint boxes overlapping by more than a third)
         keep only the best, and those on a box of ``exclude`` are left out. Each becomes its own
-        hypothesis downstream, so one false candidate cannot hide the drone.
+        hypothesis downstream, so one false candidate cannot hide the drone. ``saliency``: this
+        frame's pass, if already run (``saliency``), else it runs here.
         """
-        rois = self.candidate_rois(frame_bgr, exclude, max_candidates)
+        rois = self.candidate_rois(frame_bgr, exclude, max_candidates, saliency)
         if not rois:
             return []
         thr = self.config.presence_threshold
@@ -240,35 +248,51 @@ class Localizer:
         return kept
 
     def candidate_rois(
-        self, frame_bgr: np.ndarray, exclude: Sequence[Box] = (), max_candidates: int | None = None
+        self,
+        frame_bgr: np.ndarray,
+        exclude: Sequence[Box] = (),
+        max_candidates: int | None = None,
+        saliency: Saliency | None = None,
     ) -> list[tuple[int, int, int]]:
-        """Square crops around the most salient blobs of the frame outside ``exclude``, best first."""
-        rois, self._prev_small = propose_rois(
-            frame_bgr, self.config, self.crop.min_side, self._prev_small, exclude, max_candidates
-        )
-        return rois
+        """Square crops around the most salient blobs of the frame outside ``exclude``, best first
+        (``saliency``: this frame's pass, if already run)."""
+        if max_candidates is not None and int(max_candidates) < 1:
+            raise ValueError(f"max_candidates must be >= 1, got {max_candidates}")
+        if saliency is None:
+            saliency = self.saliency(frame_bgr)
+        return select_rois(saliency, self.config, self.crop.min_side, exclude, max_candidates)
+
+    def saliency(self, frame_bgr: np.ndarray) -> Saliency:
+        """This frame's saliency pass against the last searched frame; it becomes the next one's
+        motion reference. Safe to run on another thread while the network runs on this one."""
+        result = saliency_pass(frame_bgr, self.config, self._prev_small)
+        self._prev_small = result.small
+        return result
 
 
-def propose_rois(
-    frame_bgr: np.ndarray,
-    config: LocalizerConfig,
-    min_side: float,
-    previous_small: np.ndarray | None = None,
-    exclude: Sequence[Box] = (),
-    max_candidates: int | None = None,
-) -> tuple[list[tuple[int, int, int]], np.ndarray]:
-    """Square crops (x0, y0, side) around the most salient blobs of a frame, best first.
+@dataclass(frozen=True)
+class Saliency:
+    """The salient blobs of one frame, before any region is left out or the budget counted.
 
-    The saliency is local contrast on a ``config.work_width`` copy of the frame, plus the change
-    since ``previous_small`` (that copy of the previous frame) when ``config.use_motion``. A blob
-    lying on a box of ``exclude`` (full-frame px; more than a third of the smaller box) is skipped
-    before the budget, ``max_candidates`` (default ``config.max_candidates``), is counted. Returns
-    the crops and this frame's copy, for the next call. The training sampler calls it on drone-free
-    backgrounds to mine the hard negatives the daemon would propose.
+    blobs : boxes (x, y, w, h) in the downscaled map's pixels, the maps' best-first lists taken in
+        turn (``_take_in_turn``).
+    scale : the map's size over the frame's.
+    small : the downscaled frame (float32 BGR), the motion reference of the next pass.
     """
-    budget = config.max_candidates if max_candidates is None else int(max_candidates)
-    if budget < 1:
-        raise ValueError(f"max_candidates must be >= 1, got {max_candidates}")
+
+    blobs: tuple[Box, ...]
+    scale: float
+    small: np.ndarray
+
+
+def saliency_pass(
+    frame_bgr: np.ndarray, config: LocalizerConfig, previous_small: np.ndarray | None = None
+) -> Saliency:
+    """Local contrast on a ``config.work_width`` copy of the frame, plus the change since
+    ``previous_small`` (that copy of an earlier frame) when ``config.use_motion``: their blobs.
+
+    Pure (no state), so the pipeline may run it on another core while the track crops run.
+    """
     h, w = frame_bgr.shape[:2]
     cfg = config
     scale = min(1.0, cfg.work_width / w)
@@ -282,8 +306,25 @@ def propose_rois(
     per_map = [
         sorted(_blobs(m, cfg.min_contrast, max_side, cfg.peaks_per_region), key=lambda b: -b[0]) for m in maps
     ]
+    return Saliency(tuple(_take_in_turn(per_map)), scale, small)
+
+
+def select_rois(
+    saliency: Saliency,
+    config: LocalizerConfig,
+    min_side: float,
+    exclude: Sequence[Box] = (),
+    max_candidates: int | None = None,
+) -> list[tuple[int, int, int]]:
+    """Square crops (x0, y0, side) around a pass's blobs, best first: those on a box of ``exclude``
+    (full-frame px; more than a third of the smaller box) skipped before the budget,
+    ``max_candidates`` (default ``config.max_candidates``), is counted."""
+    budget = config.max_candidates if max_candidates is None else int(max_candidates)
+    if budget < 1:
+        raise ValueError(f"max_candidates must be >= 1, got {max_candidates}")
+    cfg, scale = config, saliency.scale
     rois, seen = [], []
-    for bx, by, bw, bh in _take_in_turn(per_map):
+    for bx, by, bw, bh in saliency.blobs:
         # Blob centre in edge coordinates of the small map -> full-frame pixel-centre coordinates.
         cx, cy = (bx + bw / 2) / scale - 0.5, (by + bh / 2) / scale - 0.5
         size = max(bw, bh) / scale
@@ -296,7 +337,25 @@ def propose_rois(
         seen.append((cx, cy, side))
         if len(rois) >= budget:
             break
-    return rois, small
+    return rois
+
+
+def propose_rois(
+    frame_bgr: np.ndarray,
+    config: LocalizerConfig,
+    min_side: float,
+    previous_small: np.ndarray | None = None,
+    exclude: Sequence[Box] = (),
+    max_candidates: int | None = None,
+) -> tuple[list[tuple[int, int, int]], np.ndarray]:
+    """Square crops (x0, y0, side) around the most salient blobs of a frame, best first, and this
+    frame's downscaled copy for the next call: ``saliency_pass`` then ``select_rois``. The
+    training sampler calls it on drone-free backgrounds to mine the hard negatives the daemon
+    would propose."""
+    if max_candidates is not None and int(max_candidates) < 1:
+        raise ValueError(f"max_candidates must be >= 1, got {max_candidates}")
+    saliency = saliency_pass(frame_bgr, config, previous_small)
+    return select_rois(saliency, config, min_side, exclude, max_candidates), saliency.small
 
 
 def _take_in_turn(ranked: list[list[tuple[float, Box]]]) -> list[Box]:

@@ -8,7 +8,7 @@ from daemon_media import write_untrained_model
 from dronekey.geometry.camera import CalibrationError
 from dronekey.geometry.drone_spec import load_spec
 from dronekey.perception.localizer import LocalizerConfig, box_from_keypoints, box_from_pose
-from dronekey.pipeline import TrackingPipeline
+from dronekey.pipeline import TrackingPipeline, _Background
 from dronekey.sim_replay.backgrounds import landscape, sky, urban
 from dronekey.sim_replay.drone_look import DroneStyle
 from dronekey.sim_replay.mesh import build_mesh
@@ -138,6 +138,25 @@ def test_the_search_skips_live_regions_before_its_budget(pipeline):
     assert _contains(only, boxes[1]), (only, boxes)
     with pytest.raises(ValueError, match="max_candidates"):
         localizer.candidate_rois(image, max_candidates=0)
+
+
+def test_a_saliency_pass_run_ahead_gives_the_candidates_the_search_would_find(pipeline):
+    """The pipeline runs a periodic search's saliency pass on another thread while the track crops
+    run, then selects candidates from it: the same crops as a pass run in place, and the pass
+    still moves the motion reference on."""
+    rng = np.random.default_rng(3)
+    frames = [urban(1080, 1920, rng) for _ in range(2)]
+    localizer = pipeline.localizer
+    localizer._prev_small = None
+    localizer.candidate_rois(frames[0])
+    in_place = localizer.candidate_rois(frames[1], max_candidates=4)
+    localizer._prev_small = None
+    localizer.candidate_rois(frames[0])
+    ahead = _Background(localizer.saliency, frames[1]).result()
+    assert localizer.candidate_rois(frames[1], max_candidates=4, saliency=ahead) == in_place
+    assert localizer._prev_small is ahead.small
+    with pytest.raises(ValueError, match="multiple of element size"):
+        _Background(np.frombuffer, b"x", np.float64).result()  # the thread's error reaches the caller
 
 
 @pytest.mark.parametrize("every", [1, 6])
