@@ -2,6 +2,7 @@
 
     dronekey-fuse --zenoh-mode client --zenoh-connect tcp/ROUTER:7447
     dronekey-fuse --cameras north,east --origin 47.3977,8.5456,488
+    dronekey-fuse --origin 47.3977,8.5456,488 --sbs1-listen 30004 --mavlink udpout:127.0.0.1:14550
 
 Exit codes: 0 never (it runs until stopped), 2 bad usage (one line names the flag and value),
 3 the Zenoh session could not be opened, 130 / 143 stopped by SIGINT / SIGTERM.
@@ -18,10 +19,13 @@ from pydantic import ValidationError
 
 import dronekey
 from dronekey.daemon.config.camera import check_camera_id
+from dronekey.daemon.config.mavlink import MavlinkConfig
+from dronekey.daemon.config.sbs1 import Sbs1Config
 from dronekey.daemon.config.zenoh import ZenohConfig
 from dronekey.daemon.errors import ExitCode
 from dronekey.daemon.fuse.fused_message import FUSED_KEY
 from dronekey.daemon.fuse.local_frame import LocalFrame
+from dronekey.daemon.fuse.outputs import FusedOutputs
 from dronekey.daemon.fuse.service import FuseService
 from dronekey.daemon.geo import CameraGeo, GeoError
 from dronekey.daemon.signals import SignalMonitor
@@ -33,7 +37,9 @@ __all__ = ["build_parser", "main"]
 log = logging.getLogger("dronekey.fuse")
 
 _EPILOG = f"""Publishes one JSON message per fused track on {FUSED_KEY} (schema fused_track:
-the track's fields in ENU at the fused frame's origin, lat/lon/alt, and the contributing cameras).
+the track's fields in ENU at the fused frame's origin, lat/lon/alt, and the contributing cameras),
+and with --sbs1-listen / --mavlink the same tracks as the daemon's SBS-1 lines and MAVLink
+ADSB_VEHICLE / TARGET_ABSOLUTE messages (fused id = track id).
 Each daemon must publish its camera pose: start it with --camera-extrinsics FILE or --camera-geo.
 
 exit codes:
@@ -94,8 +100,55 @@ def build_parser() -> argparse.ArgumentParser:
     )
     g.add_argument("--zenoh-tls-cert", metavar="PEM", help="this fuser's certificate from that CA")
     g.add_argument("--zenoh-tls-key", metavar="PEM", help="its private key")
+    g = p.add_argument_group(
+        "air-picture outputs of the fused tracks (off by default; both need --origin: they carry lat/lon)"
+    )
+    g.add_argument(
+        "--sbs1-listen",
+        metavar="[HOST:]PORT",
+        help="serve SBS-1 (BaseStation) lines on TCP, e.g. 30004 (127.0.0.1); 0.0.0.0:30004 serves "
+        "the network",
+    )
+    g.add_argument(
+        "--mavlink",
+        metavar="URL",
+        help="send ADSB_VEHICLE / TARGET_ABSOLUTE over MAVLink 2, e.g. udpout:127.0.0.1:14550",
+    )
+    g.add_argument(
+        "--mavlink-sysid",
+        type=int,
+        default=FUSER_SYSID,
+        metavar="N",
+        help=f"the fuser's MAVLink system id, 1-254 (default {FUSER_SYSID}: the daemons default to 42)",
+    )
     p.add_argument("--log-level", default="INFO", choices=("DEBUG", "INFO", "WARNING", "ERROR"))
     return p
+
+
+FUSER_SYSID = 43  # apart from the daemons' default 42, so a ground station sees two systems
+
+
+def _air_picture(args: argparse.Namespace) -> tuple[Sbs1Config | None, MavlinkConfig | None]:
+    """The SBS-1 and MAVLink sections the flags ask for (None: off)."""
+    sbs1 = mavlink = None
+    if args.sbs1_listen is not None:
+        try:
+            sbs1 = Sbs1Config(listen=args.sbs1_listen)
+        except ValidationError as exc:
+            raise _UsageError(f"--sbs1-listen {args.sbs1_listen!r}: {exc.errors()[0]['msg']}") from None
+    if args.mavlink is not None:
+        try:
+            mavlink = MavlinkConfig(url=args.mavlink, sysid=args.mavlink_sysid)
+        except ValidationError as exc:
+            error = exc.errors()[0]
+            flag = "--mavlink-sysid" if error["loc"] == ("sysid",) else "--mavlink"
+            raise _UsageError(f"{flag}: {error['msg']}") from None
+    if (sbs1 or mavlink) and args.origin is None:
+        raise _UsageError(
+            "--sbs1-listen and --mavlink report latitude and longitude: give the fused frame's origin, "
+            "--origin LAT,LON,ALT_M"
+        )
+    return sbs1, mavlink
 
 
 # the zenoh section's fields -> this command's flags, for error messages
@@ -159,10 +212,20 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=args.log_level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     try:
         zenoh_settings, cameras, origin, fusion = _settings(args)
+        sbs1, mavlink = _air_picture(args)
     except _UsageError as exc:
         log.error("%s", exc)
         return ExitCode.USAGE
-    service = FuseService(zenoh_settings, cameras, origin, fusion, clock=args.clock, rate_hz=args.rate_hz)
+    outputs = None
+    if sbs1 is not None or mavlink is not None:
+        try:
+            outputs = FusedOutputs(origin, sbs1=sbs1, mavlink=mavlink)
+        except (ValueError, OSError) as exc:
+            log.error("%s", exc)
+            return ExitCode.USAGE
+    service = FuseService(
+        zenoh_settings, cameras, origin, fusion, clock=args.clock, rate_hz=args.rate_hz, outputs=outputs
+    )
     signals = SignalMonitor()
     signals.install()
     threading.Thread(target=lambda: (signals.stop.wait(), service.stop()), name="stop", daemon=True).start()

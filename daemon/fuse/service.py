@@ -7,7 +7,8 @@
 - Puts each camera's clock onto its own (``ClockAlignment``), feeds ``Fuser``, and every
   ``1 / rate_hz`` s, when new tracks came, fuses at the newest track time and publishes one message
   per fused track on ``dronekey/fused/tracks`` (congestion control DROP: a slow subscriber never
-  stalls it), with a liveliness token ``dronekey/fused/alive``.
+  stalls it), with a liveliness token ``dronekey/fused/alive``, and hands them to the SBS-1 /
+  MAVLink outputs when it has them (``daemon/fuse/outputs.py``).
 
 The session uses the daemon's settings and secure defaults (``daemon/sinks/zenoh_session.py``): a
 peer listens on 127.0.0.1 only, a client through the routers it is given, scouting off.
@@ -27,6 +28,7 @@ import zenoh
 from dronekey.daemon.config.zenoh import ZenohConfig
 from dronekey.daemon.fuse.fused_message import FUSED_KEY, FUSER_ID, fused_track_message
 from dronekey.daemon.fuse.local_frame import LocalFrame, camera_ecef_pose, origin_hint
+from dronekey.daemon.fuse.outputs import FusedOutputs
 from dronekey.daemon.fuse.track_input import parse_track_message
 from dronekey.daemon.messages import key_expressions, to_json_bytes
 from dronekey.daemon.sinks.zenoh_session import describe_exposure, zenoh_config
@@ -51,6 +53,8 @@ class FuseService:
     clock : ``auto``, ``trust`` or ``arrival`` (``dronekey.fusion.clock``).
     rate_hz : fused updates per second at most.
     pose_retry_s : wait between info queries of a camera that has no pose yet.
+    outputs : the fused tracks' SBS-1 / MAVLink outputs (``FusedOutputs``), closed when ``run``
+        returns; None: Zenoh only.
     """
 
     def __init__(
@@ -62,6 +66,7 @@ class FuseService:
         clock: str = "auto",
         rate_hz: float = 30.0,
         pose_retry_s: float = 2.0,
+        outputs: FusedOutputs | None = None,
     ) -> None:
         if not rate_hz > 0:
             raise ValueError(f"rate_hz must be > 0, got {rate_hz!r}")
@@ -72,6 +77,7 @@ class FuseService:
         self._clock = ClockAlignment(clock)
         self._period_s = 1.0 / rate_hz
         self._pose_retry_s = pose_retry_s
+        self._outputs = outputs
         self._lock = threading.Lock()
         self._fresh = False
         self._warned: set[str] = set()  # cameras whose info had no usable pose, already logged
@@ -153,6 +159,8 @@ class FuseService:
         for track in fused:
             publisher.put(to_json_bytes(fused_track_message(track, frame)))
             self.counts["fused_out"] += 1
+        if self._outputs is not None and t_ns is not None:
+            self._outputs.publish(fused, t_ns)
 
     def run(self, opened: threading.Event | None = None) -> None:
         """Open the session, subscribe, publish until ``stop``; close everything on the way out.
@@ -176,9 +184,12 @@ class FuseService:
             log.info("fusing %s, publishing on %s", ", ".join(keys), FUSED_KEY)
             if opened is not None:
                 opened.set()
-            last_report = time.monotonic()
+            last_report = last_alive = time.monotonic()
             while not self._stop.wait(self._period_s):
                 self._publish_due(publisher)
+                if self._outputs is not None and time.monotonic() - last_alive >= 1.0:
+                    last_alive = time.monotonic()
+                    self._outputs.alive()
                 if time.monotonic() - last_report > 10.0:
                     last_report = time.monotonic()
                     log.info("cameras placed: %s; %s", list(self._fuser.cameras), dict(self.counts))
@@ -188,4 +199,6 @@ class FuseService:
                 subscriber.undeclare()
         finally:
             self._session.close()
+            if self._outputs is not None:
+                self._outputs.close()
         log.info("stopped; %s", dict(self.counts))

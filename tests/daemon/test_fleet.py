@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -51,6 +52,7 @@ def test_two_daemons_and_the_fuser_through_a_router(two_cameras):
         "dronekey/fused/tracks", lambda sample: fused.append(json.loads(sample.payload.to_bytes()))
     )
     client = ["--zenoh-mode", "client", "--zenoh-connect", endpoint]
+    sbs1_port = free_port()
     processes = [
         subprocess.Popen(
             [
@@ -62,6 +64,10 @@ def test_two_daemons_and_the_fuser_through_a_router(two_cameras):
                 "trust",
                 "--max-age-s",
                 "2",
+                "--origin",
+                "47.397742,8.545594,488",
+                "--sbs1-listen",
+                str(sbs1_port),
             ],
             stderr=subprocess.PIPE,
             text=True,
@@ -78,11 +84,15 @@ def test_two_daemons_and_the_fuser_through_a_router(two_cameras):
                 stderr=subprocess.DEVNULL,
             )
         )
+    sbs1_lines = ""
     try:
         deadline = time.monotonic() + 60
         while time.monotonic() < deadline and not any(len(m["cameras"]) == 2 for m in fused):
             time.sleep(0.1)
             assert all(p.poll() is None for p in processes), "a process of the fleet exited early"
+        with socket.create_connection(("127.0.0.1", sbs1_port), timeout=5.0) as air_picture:
+            while "MSG,3," not in sbs1_lines and time.monotonic() < deadline + 10:
+                sbs1_lines += air_picture.recv(65536).decode("ascii")
     finally:
         for p in processes:
             p.send_signal(signal.SIGTERM)
@@ -103,6 +113,9 @@ def test_two_daemons_and_the_fuser_through_a_router(two_cameras):
     assert np.linalg.norm(last["position_m"]) < 30.0
     assert abs(last["lat"] - 47.397742) < 3e-4 and abs(last["lon"] - 8.545594) < 4e-4
     assert "camera cam0 placed (from its extrinsics)" in fuser_log
+    # the same fused drone on the fuser's SBS-1 output (lat, lon: fields 15 and 16 of MSG,3)
+    position = next(line for line in sbs1_lines.split("\r\n") if line.startswith("MSG,3,")).split(",")
+    assert abs(float(position[14]) - 47.397742) < 3e-4 and abs(float(position[15]) - 8.545594) < 4e-4
 
 
 def test_fuse_usage_errors_are_one_line():
@@ -122,6 +135,10 @@ def test_fuse_usage_errors_are_one_line():
         timeout=30,
     )
     assert result.returncode == ExitCode.USAGE and "--zenoh-connect" in result.stderr
+    result = subprocess.run(
+        [BIN / "dronekey-fuse", "--sbs1-listen", "30004"], capture_output=True, text=True, timeout=30
+    )
+    assert result.returncode == ExitCode.USAGE and "--origin LAT,LON,ALT_M" in result.stderr
 
 
 def test_fuse_client_without_a_router_says_so():
