@@ -78,7 +78,7 @@ def default_pipeline_factory(camera: CameraModel, config: DaemonConfig) -> Pipel
         drone=m.drone,
         threads=m.threads,
         mirror_average=m.mirror_average,
-        tracker=TrackerConfig(max_tracks=t.max_tracks),
+        tracker=TrackerConfig(max_tracks=t.max_tracks, confirm_min_change=t.confirm_min_change),
         search_every=t.search_every,
         search_more_every=t.search_more_every,
         max_search_candidates=t.max_search_candidates,

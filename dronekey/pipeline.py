@@ -32,6 +32,7 @@ from dronekey.checks import int_at_least
 from dronekey.geometry.camera import CalibrationError, CameraModel
 from dronekey.geometry.crop import CropPolicy
 from dronekey.geometry.drone_spec import DroneSpec, load_spec
+from dronekey.perception.frame_change import frame_change
 from dronekey.perception.keypoint_model import HEADING_TWIN, KeypointModel
 from dronekey.perception.keypoint_order import KeypointOrder
 from dronekey.perception.localizer import (
@@ -57,11 +58,14 @@ _HELD = (TrackStatus.CONFIRMED, TrackStatus.COASTING)  # confirmed tracks, measu
 @dataclass(frozen=True, slots=True)
 class Measured:
     """One detection that became a pose this frame: its keypoints (in the order the pose uses),
-    the pose, and the track whose crop it came from (None: from the whole-frame search)."""
+    the pose, the track whose crop it came from (None: from the whole-frame search), and how much
+    its propellers changed since the previous frame above their surroundings
+    (``dronekey.perception.frame_change``, grey levels; NaN on the first frame)."""
 
     detection: KeypointDetection
     measurement: PoseMeasurement
     track_id: int | None = None
+    change: float = float("nan")  # its pixels' change since the previous frame, grey levels
 
 
 @dataclass(frozen=True, slots=True)
@@ -202,6 +206,7 @@ class PoseTracker:
             [m.detection.presence for m in measured],
             [m.detection.keypoints_px for m in measured],
             [m.detection.heading_p for m in measured],
+            [m.change for m in measured],
         )
 
 
@@ -269,6 +274,7 @@ class TrackingPipeline:
             camera, self.spec, tracker, keypoint_sigma_px, max_reprojection_frac, plausibility
         )
         self.frames = 0
+        self._previous_bgr: np.ndarray | None = None
 
     def info(self) -> dict:
         """Camera, model and drone, for status messages and the Zenoh ``info`` queryable."""
@@ -308,6 +314,11 @@ class TrackingPipeline:
                     rejections.append(rejection)
             timings["acquire"] = _ms(t1)
         t2 = time.perf_counter()
+        measured = [
+            replace(m, change=frame_change(frame.bgr, self._previous_bgr, m.detection.keypoints_px))
+            for m in measured
+        ]
+        self._previous_bgr = frame.bgr  # kept, not copied: no one writes to a frame once processed
         tracks = self.poses.track_all(frame.t_ns, measured)
         timings["track"] = _ms(t2)
         timings["total"] = _ms(t0)

@@ -27,3 +27,10 @@ class TrackingConfig(Section):
     max_search_candidates: int = Field(
         2, ge=0, le=16, description="crops a search for more drones may check (0: no such search)"
     )
+    confirm_min_change: float = Field(
+        4.0,
+        ge=0,
+        le=255,
+        description="grey levels a detection's propellers must change above their surroundings, frame to "
+        "frame, to confirm a track (0: off, e.g. to report drones hovering with stopped propellers)",
+    )

@@ -37,6 +37,7 @@ class TrackRecord:
         score: float,
         keypoints_px: np.ndarray | None,
         config: TrackerConfig,
+        change: float = float("nan"),
     ) -> None:
         cov = measurement.covariance
         self.track_id = track_id
@@ -47,6 +48,7 @@ class TrackRecord:
         self.hits = 1
         self.frames = 1  # update calls seen, the birth frame included
         self.misses = 0  # update calls since the last hit
+        self.still_hits = 0  # hits in a row whose pixels changed less than confirm_min_change
         self.window: deque[bool] = deque([True], maxlen=config.confirm_window)
         self.rotation_misses = 0
         self.branch_evidence = 0.0  # log-odds that the IPPE solution not followed is the right one
@@ -64,8 +66,9 @@ class TrackRecord:
         self.reprojection_px = float(measurement.reprojection_px)
         self.keypoint_motion = KeypointMotion()  # where its keypoints are expected (association)
         self.keypoint_motion.observe(t_ns, keypoints_px)
-        self.evidence: deque[tuple[float, float]] = deque(maxlen=config.confirm_window)  # (range, score)
-        self.evidence.append((float(np.linalg.norm(measurement.t)), score))
+        # (range m, presence score, frame change in grey levels) of its latest hits
+        self.evidence: deque[tuple[float, float, float]] = deque(maxlen=config.confirm_window)
+        self.evidence.append((float(np.linalg.norm(measurement.t)), score, change))
         self.heading_log_odds: float | None = None  # None: no front/back evidence yet (NaN inputs)
         self.heading_cap = config.heading_confidence_cap
 

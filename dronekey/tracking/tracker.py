@@ -26,14 +26,16 @@ when they say it is the back (:mod:`dronekey.tracking.heading`).
 Lifecycle: a new track is TENTATIVE; it becomes CONFIRMED after ``confirm_hits`` hits within its
 first ``confirm_window`` frames whose evidence agrees: their ranges within a factor
 ``1 + confirm_range_spread`` of each other (a real drone cannot halve its distance in a sixth of a
-second) and their mean presence at least ``confirm_presence``; otherwise it is dropped. Every
+second), their mean presence at least ``confirm_presence``, and every one of them a change of
+the pixels since the previous frame (``confirm_min_change``: a drone in flight moves and spins
+its propellers, clutter in front of a fixed camera does not); otherwise it is dropped. Every
 measurement has passed the pipeline's plausibility gate (``dronekey.perception.plausibility``) before it gets
 here, and a frame may bring several: each unmatched one starts its own tentative hypothesis, so a
 false candidate cannot block the true one, and only the hypotheses whose evidence holds confirm.
-A confirmed track without a measurement is COASTING (predicted); one that has coasted longer than
-``max_coast_s``, or for more than ``coast_frames_per_hit`` frames per hit it has had, is reported
-once as LOST and dropped. Every track that was reported ends with
-exactly one LOST report.
+A confirmed track without a measurement is COASTING (predicted). One that has coasted longer than
+``max_coast_s``, or for more than ``coast_frames_per_hit`` frames per hit it has had, or whose
+last ``max_still_hits`` hits all left its pixels unchanged, is reported once as LOST and dropped.
+Every track that was reported ends with exactly one LOST report.
 """
 
 from __future__ import annotations
@@ -123,6 +125,7 @@ class Tracker:
         scores: Sequence[float] | None = None,
         keypoints_px: Sequence[np.ndarray | None] | None = None,
         heading_p: Sequence[float] | None = None,
+        changes: Sequence[float] | None = None,
     ) -> list[Track]:
         """Advance every track to ``t_ns`` and fold in this frame's measurements.
 
@@ -139,6 +142,10 @@ class Tracker:
         heading_p : sequence of float, optional
             Probability that each measurement's front is the drone's front (its keypoints are not
             in the 180-degree twin order); NaN or absent when unknown.
+        changes : sequence of float, optional
+            How much each measurement's pixels changed since the previous frame
+            (``dronekey.perception.frame_change``, grey levels): confirmation evidence; NaN or
+            absent when unknown (no previous frame, no images).
 
         Returns
         -------
@@ -163,13 +170,15 @@ class Tracker:
         heading_p = [
             float(p) for p in _per_measurement("heading_p", heading_p, len(measurements), float("nan"))
         ]
+        changes = [float(c) for c in _per_measurement("changes", changes, len(measurements), float("nan"))]
         t_ns = self._check_time(t_ns)
 
         for track in self._tracks.values():
             track.predict_to(t_ns)
         pairs, unmatched = self._associate(t_ns, measurements, keypoints_px)
         for track_id, j in pairs:
-            self._apply(self._tracks[track_id], measurements[j], scores[j], keypoints_px[j], heading_p[j])
+            track = self._tracks[track_id]
+            self._apply(track, measurements[j], scores[j], keypoints_px[j], heading_p[j], changes[j])
         matched = {track_id for track_id, _ in pairs}
 
         reports: list[Track] = []
@@ -187,7 +196,9 @@ class Tracker:
             if len(self._tracks) >= self.config.max_tracks:
                 log.debug("measurement ignored: max_tracks=%d live tracks", self.config.max_tracks)
                 continue
-            track = TrackRecord(self._next_id, t_ns, measurements[j], scores[j], keypoints_px[j], self.config)
+            track = TrackRecord(
+                self._next_id, t_ns, measurements[j], scores[j], keypoints_px[j], self.config, changes[j]
+            )
             track.add_heading_evidence(heading_p[j], 1.0)  # a new track starts from the network's word
             self._tracks[track.track_id] = track
             self._next_id += 1
@@ -283,12 +294,15 @@ class Tracker:
         score: float,
         keypoints_px: np.ndarray | None,
         heading_p: float = float("nan"),
+        change: float = float("nan"),
     ) -> None:
         cfg = self.config
         track.position.update(m.t, m.covariance[:3, :3])
         m, heading_p = update_heading(track, m, heading_p, cfg)
         update_orientation(track, m, cfg)
-        track.evidence.append((float(np.linalg.norm(m.t)), score))
+        track.evidence.append((float(np.linalg.norm(m.t)), score, change))
+        if math.isfinite(change):
+            track.still_hits = track.still_hits + 1 if change < cfg.confirm_min_change else 0
         track.hits += 1
         track.frames += 1
         track.misses = 0
@@ -308,8 +322,9 @@ class Tracker:
     def _evidence_agrees(self, track: TrackRecord) -> bool:
         """The confirmation rule's consistency: ranges within a factor, presence high enough."""
         cfg = self.config
-        ranges = [r for r, _ in track.evidence]
-        scores = [sc for _, sc in track.evidence if math.isfinite(sc)]
+        ranges = [r for r, _, _ in track.evidence]
+        scores = [sc for _, sc, _ in track.evidence if math.isfinite(sc)]
+        changes = [c for _, _, c in track.evidence if math.isfinite(c)]
         if max(ranges) > (1.0 + cfg.confirm_range_spread) * min(ranges):
             log.debug(
                 "track %d: ranges %.1f-%.1f m disagree; not confirmed",
@@ -323,6 +338,11 @@ class Tracker:
             return False
         if scores and min(scores) < cfg.confirm_min_presence:
             log.debug("track %d: a hit's presence %.2f too low; not confirmed", track.track_id, min(scores))
+            return False
+        if changes and min(changes) < cfg.confirm_min_change:
+            log.debug(
+                "track %d: a hit changed %.1f grey levels only; not confirmed", track.track_id, min(changes)
+            )
             return False
         return True
 
@@ -338,6 +358,9 @@ class Tracker:
         if track.t_ns - track.last_hit_ns > self.config.max_coast_s * NS_PER_S:
             return True
         if track.misses > self.config.coast_frames_per_hit * track.hits:
+            return True
+        if track.still_hits >= self.config.max_still_hits:
+            log.info("track %d dropped: unchanged for %d hits (clutter)", track.track_id, track.still_hits)
             return True
         return track.status is TrackStatus.TENTATIVE and track.frames >= self.config.confirm_window
 

@@ -435,3 +435,25 @@ def test_track_started_on_the_wrong_ippe_solution_recovers():
     raw, filtered = run_chain(1.0, frames=60, start_on_wrong_solution=True, skip=0)
     assert filtered[0, 0] > 30.0 and raw[0, 0] > 30.0  # it did start on the wrong one
     assert filtered[-30:, 0].max() < 10.0
+
+
+def test_confirmation_needs_every_confirming_hit_to_have_changed_and_a_still_track_is_dropped():
+    """Clutter in front of a fixed camera does not change frame to frame; a flying drone does."""
+    config = TrackerConfig(confirm_hits=3, confirm_window=5, confirm_min_change=4.0, max_still_hits=10)
+
+    def run(changes: list[float]) -> list[TrackStatus]:
+        tracker = Tracker(config)
+        return [
+            tracker.update(
+                t_ns(k), [measurement(seen_from_below(0.0), [0.0, 0.0, 4.0])], [1.0], None, None, [c]
+            )[0].status
+            for k, c in enumerate(changes)
+        ]
+
+    assert run([30.0, 25.0, 40.0])[-1] is TrackStatus.CONFIRMED
+    assert run([30.0, 1.0, 40.0])[-1] is TrackStatus.TENTATIVE  # one still hit in the window
+    assert run([math.nan] * 3)[-1] is TrackStatus.CONFIRMED  # unknown (no images) does not block
+    statuses = run([30.0, 25.0, 40.0] + [0.5] * 10)
+    assert statuses[-2] is TrackStatus.CONFIRMED and statuses[-1] is TrackStatus.LOST  # 10 still hits
+    statuses = run([30.0, 25.0, 40.0] + [0.5] * 9 + [12.0] + [0.5] * 9)
+    assert TrackStatus.LOST not in statuses  # a hit that changed resets the count
