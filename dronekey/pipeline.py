@@ -274,6 +274,7 @@ class TrackingPipeline:
             camera, self.spec, tracker, keypoint_sigma_px, max_reprojection_frac, plausibility
         )
         self.frames = 0
+        self.helper_cpu_s = 0.0  # CPU seconds spent on helper threads (the early saliency passes)
         self._previous_bgr: np.ndarray | None = None
 
     def info(self) -> dict:
@@ -302,6 +303,7 @@ class TrackingPipeline:
         measured, regions, rejections, state = self._track_crops(frame, w, h)
         timings["track_crop"] = _ms(t0)
         saliency = early.result() if early is not None else None
+        self.helper_cpu_s += early.cpu_s if early is not None else 0.0
         budget, more_only = self._search_budget(state)
         exclude = regions[1] if more_only else regions[0]
         if budget:
@@ -405,18 +407,23 @@ class TrackingPipeline:
 
 class _Background:
     """``fn(*args)`` on a thread of its own; ``result()`` waits for it and re-raises its error.
-    For calls that release the GIL (OpenCV, numpy), so that they use a second core."""
+    For calls that release the GIL (OpenCV, numpy), so that they use a second core. ``cpu_s``: the
+    CPU time the call took on its thread (benchmarks add it to the pipeline's own)."""
 
     def __init__(self, fn, *args) -> None:
         self._value = self._error = None
+        self.cpu_s = 0.0
         self._thread = threading.Thread(target=self._run, args=(fn, args), daemon=True)
         self._thread.start()
 
     def _run(self, fn, args) -> None:
+        started = time.thread_time()
         try:
             self._value = fn(*args)
         except BaseException as error:  # handed to the caller by result()
             self._error = error
+        finally:
+            self.cpu_s = time.thread_time() - started
 
     def result(self):
         self._thread.join()

@@ -54,7 +54,7 @@ class Meter:
         self.end: Stamp | None = None
         self.last: Stamp | None = None
         self.pipeline = None
-        self.pipeline_cpu_s = 0.0  # the pipeline thread's CPU time in process(), after warm-up
+        self.pipeline_cpu_s = 0.0  # CPU time in process() (its thread and helpers), after warm-up
         self._rss = rss
         self._process = psutil.Process()
         self._bar = tqdm(total=frames, desc=desc, unit="frame", file=sys.stderr, leave=False)
@@ -68,10 +68,12 @@ class Meter:
         return self.pipeline.info()
 
     def process(self, frame):
-        started = time.thread_time()
+        started, helpers = time.thread_time(), getattr(self.pipeline, "helper_cpu_s", 0.0)
         output = self.pipeline.process(frame)
         if self.start is not None and self.end is None:
-            self.pipeline_cpu_s += time.thread_time() - started
+            # the pipeline thread's CPU and its helper threads' (the early saliency pass)
+            helpers = getattr(self.pipeline, "helper_cpu_s", 0.0) - helpers
+            self.pipeline_cpu_s += time.thread_time() - started + helpers
         self.frames += 1
         self.modes[output.mode] += 1
         if self.frames == self.warmup:
