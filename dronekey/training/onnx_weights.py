@@ -79,7 +79,7 @@ def weights_from_onnx(path: str | Path, net: nn.Module) -> dict[str, torch.Tenso
                 f"{path}: {key} {tuple(value.shape)} does not fit this network "
                 f"({tuple(own[key].shape) if key in own else 'no such tensor'})"
             )
-        out[key] = torch.from_numpy(np.ascontiguousarray(value))
+        out[key] = torch.from_numpy(np.array(value, order="C"))  # a writable copy: ONNX arrays are read-only
 
     def folded_bn(conv: str, bias: np.ndarray) -> None:
         parent, index = conv.rsplit(".", 1)
