@@ -16,11 +16,13 @@ reader's CPU per frame; the workers measure the pipeline's. The report:
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import math
 import subprocess
 import sys
+import tempfile
 import time
 
 from dronekey.daemon.bench.bench_setup import BenchSetup
@@ -53,6 +55,54 @@ def _worker_command(
     return [sys.executable, "-m", "dronekey.daemon.bench.camera_worker", json.dumps(args)]
 
 
+def _run_workers(commands: dict[str, list[str]], deadline_s: float, signals: SignalMonitor) -> list[dict]:
+    """Start one worker process per camera, wait for them all (or stop them on a signal or at the
+    deadline), and return each one's JSON report, in ``commands``' order.
+
+    Their output goes to files, not pipes: nobody reads a pipe while the workers run, and a worker
+    whose log filled its 64 KiB pipe blocked there until the deadline (a 5-minute run of three
+    cameras stalled so).
+    """
+    with contextlib.ExitStack() as files:
+        outputs = {
+            cam: (
+                files.enter_context(tempfile.TemporaryFile("w+")),
+                files.enter_context(tempfile.TemporaryFile("w+")),
+            )
+            for cam in commands
+        }
+        procs = {
+            cam: subprocess.Popen(command, stdout=outputs[cam][0], stderr=outputs[cam][1], text=True)
+            for cam, command in commands.items()
+        }
+        deadline = time.monotonic() + deadline_s
+        try:
+            while any(p.poll() is None for p in procs.values()):
+                if signals.exit_code is not None:
+                    raise BenchInterruptedError(
+                        f"stopped by {signals.exit_code.name}", int(signals.exit_code)
+                    )
+                if time.monotonic() > deadline:
+                    raise BenchError(f"the cameras did not finish within {deadline_s:.0f} s")
+                time.sleep(0.2)
+        finally:
+            for p in procs.values():
+                if p.poll() is None:
+                    p.terminate()
+                p.wait()
+        reports = []
+        for cam, proc in procs.items():
+            out, err = outputs[cam]
+            out.seek(0)
+            err.seek(0)
+            out_text, err_text = out.read(), err.read()
+            if proc.returncode != 0 or not out_text.strip():
+                last = (err_text.strip().splitlines() or ["no output"])[-1]
+                raise BenchError(f"camera {cam} failed (exit {proc.returncode}): {last}")
+            reports.append(json.loads(out_text.strip().splitlines()[-1]))
+        return reports
+
+
 def run_cameras_bench(
     setup: BenchSetup, *, count: int, seconds: float, warmup_s: float = 2.0, signals: SignalMonitor
 ) -> dict:
@@ -64,35 +114,8 @@ def run_cameras_bench(
     clip_fps = reader.frame_rate or 30.0
     warmup = max(1, round(warmup_s * clip_fps))
     frames = warmup + max(1, round(seconds * clip_fps))
-    ids = [f"cam{i}" for i in range(count)]
-    procs = {
-        cam: subprocess.Popen(
-            _worker_command(setup, cam, frames, warmup, clip_fps),
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-        )
-        for cam in ids
-    }
-    deadline = time.monotonic() + frames / clip_fps * 3 + _START_GRACE_S
-    try:
-        while any(p.poll() is None for p in procs.values()):
-            if signals.exit_code is not None:
-                raise BenchInterruptedError(f"stopped by {signals.exit_code.name}", int(signals.exit_code))
-            if time.monotonic() > deadline:
-                raise BenchError(f"the cameras did not finish {frames} frames in time")
-            time.sleep(0.2)
-    finally:
-        for p in procs.values():
-            if p.poll() is None:
-                p.terminate()
-    cameras = []
-    for cam, proc in procs.items():
-        out, err = proc.communicate()
-        if proc.returncode != 0 or not out.strip():
-            last = (err.strip().splitlines() or ["no output"])[-1]
-            raise BenchError(f"camera {cam} failed (exit {proc.returncode}): {last}")
-        cameras.append(json.loads(out.strip().splitlines()[-1]))
+    commands = {f"cam{i}": _worker_command(setup, f"cam{i}", frames, warmup, clip_fps) for i in range(count)}
+    cameras = _run_workers(commands, frames / clip_fps * 3 + _START_GRACE_S, signals)
     pipeline_ms = sum(c["pipeline_cpu_ms_per_frame"] for c in cameras) / count
     cores = usable_cores()
     limit = cpu_limit_fps(decode_cpu_ms, pipeline_ms, cores)

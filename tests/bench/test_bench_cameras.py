@@ -54,3 +54,23 @@ def test_table_and_bad_input(assets, tmp_path):
     assert missing.returncode == 1
     expected = f"dronekey-bench cameras: error: --source: no such file: {tmp_path / 'absent.mp4'}"
     assert missing.stderr.strip() == expected
+
+
+def test_a_worker_that_logs_more_than_a_pipe_holds_does_not_stall_the_run(assets, monkeypatch):
+    """Workers' output goes to files, not pipes nobody reads while they run: a worker that wrote
+    more than 64 KiB of log lines used to block until the run's deadline (a 5-minute run)."""
+    from pathlib import Path
+
+    from dronekey.daemon.bench import cameras as bench_cameras
+    from dronekey.daemon.bench.bench_setup import BenchSetup
+    from dronekey.daemon.signals import SignalMonitor
+
+    report = {key: 1.0 for key in CAMERA_KEYS}
+    noisy = (
+        "import sys, json; sys.stderr.write('a daemon warning line\\n' * 20000); "
+        f"print(json.dumps({report!r}))"
+    )
+    monkeypatch.setattr(bench_cameras, "_worker_command", lambda *args: [sys.executable, "-c", noisy])
+    setup = BenchSetup(Path(assets / "clip.mp4"), assets / "camera.yaml", assets / "untrained.onnx")
+    result = bench_cameras.run_cameras_bench(setup, count=2, seconds=1.0, signals=SignalMonitor())
+    assert [c["fps"] for c in result["cameras"]] == [1.0, 1.0]
