@@ -47,13 +47,12 @@ def _position(
     infos = [np.linalg.inv(o.position_cov) for o in observations]
     info = sum(infos)
     weighted = sum(i @ o.position_m for i, o in zip(infos, observations, strict=True))
-    velocity_cov = np.linalg.inv(info)
-    velocity = velocity_cov @ sum(i @ o.velocity_mps for i, o in zip(infos, observations, strict=True))
-    if prior is not None:
-        prior_info = np.linalg.inv(prior[1])
-        info = info + prior_info
-        weighted = weighted + prior_info @ prior[0]
     cov = np.linalg.inv(info)
+    velocity = cov @ sum(i @ o.velocity_mps for i, o in zip(infos, observations, strict=True))
+    if prior is not None:  # the prior weighs in on position only
+        prior_info = np.linalg.inv(prior[1])
+        weighted = weighted + prior_info @ prior[0]
+        cov = np.linalg.inv(info + prior_info)
     cov = 0.5 * (cov + cov.T)
     return cov @ weighted, velocity, cov
 

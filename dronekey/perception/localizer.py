@@ -256,8 +256,6 @@ class Localizer:
     ) -> list[tuple[int, int, int]]:
         """Square crops around the most salient blobs of the frame outside ``exclude``, best first
         (``saliency``: this frame's pass, if already run)."""
-        if max_candidates is not None and int(max_candidates) < 1:
-            raise ValueError(f"max_candidates must be >= 1, got {max_candidates}")
         if saliency is None:
             saliency = self.saliency(frame_bgr)
         return select_rois(saliency, self.config, self.crop.min_side, exclude, max_candidates)
@@ -352,8 +350,6 @@ def propose_rois(
     frame's downscaled copy for the next call: ``saliency_pass`` then ``select_rois``. The
     training sampler calls it on drone-free backgrounds to mine the hard negatives the daemon
     would propose."""
-    if max_candidates is not None and int(max_candidates) < 1:
-        raise ValueError(f"max_candidates must be >= 1, got {max_candidates}")
     saliency = saliency_pass(frame_bgr, config, previous_small)
     return select_rois(saliency, config, min_side, exclude, max_candidates), saliency.small
 
