@@ -70,12 +70,11 @@ def make_reader(config: SourceConfig) -> FrameReader:
         # The watchdog reports the stall after stall_timeout_s; the read gives up (and the capture
         # reconnects) after twice that. PyAV unless source.decoder is opencv: a stream that does not
         # open is usually down, and trying a second library would double every reconnection wait.
-        stream_reader = NetworkStreamReader if config.decoder == "opencv" else PyAVStreamReader
-        return stream_reader(
-            uri,
-            config.network,
-            read_timeout_s=2 * config.stall_timeout_s,
-            decode_threads=config.decode_threads,
+        read_timeout_s = 2 * config.stall_timeout_s
+        if config.decoder == "opencv":
+            return NetworkStreamReader(uri, config.network, read_timeout_s, config.decode_threads)
+        return PyAVStreamReader(
+            uri, config.network, read_timeout_s, config.decode_threads, fast_decode=config.fast_decode
         )
     if scheme == "file":
         uri = uri[len("file://") :]
@@ -98,7 +97,10 @@ def make_reader(config: SourceConfig) -> FrameReader:
     if config.decoder == "opencv":
         return VideoFileReader(path, decode_threads=config.decode_threads)
     if config.decoder == "pyav":
-        return PyAVFileReader(path, decode_threads=config.decode_threads)
+        return PyAVFileReader(path, config.decode_threads, fast_decode=config.fast_decode)
     return FirstThatOpens(
-        [PyAVFileReader(path, config.decode_threads), VideoFileReader(path, config.decode_threads)]
+        [
+            PyAVFileReader(path, config.decode_threads, fast_decode=config.fast_decode),
+            VideoFileReader(path, config.decode_threads),
+        ]
     )

@@ -29,6 +29,7 @@ from dronekey.daemon.sources import Capture, CaptureStats, SourceOpenError, Sour
 from dronekey.daemon.sources.fallback import FirstThatOpens
 from dronekey.daemon.sources.opencv_readers import NetworkStreamReader, V4l2Reader, VideoFileReader
 from dronekey.daemon.sources.pyav_reader import (
+    FAST_DECODE_OPTIONS,
     PyAVFileReader,
     PyAVStreamReader,
     bgr_from_frame,
@@ -64,6 +65,24 @@ def test_same_pictures_and_timestamps_as_opencv(media):
     assert [f.t_ns for f in ours] == [f.t_ns for f in theirs]
     for a, b in zip(ours, theirs, strict=True):
         assert np.abs(a.bgr.astype(int) - b.bgr.astype(int)).mean() < 2  # swscale vs OpenCV's conversion
+
+
+def test_fast_decode_skips_deblocking_and_stays_close_to_the_standard_decode(media):
+    """source.fast_decode (the default) hands FFmpeg the no-deblocking options; the pictures stay
+    within a grey level or two of a conformant decode, and false decodes to the standard."""
+    import av
+
+    with av.open(str(media / "h264.mp4")) as container:
+        standard = [bgr_from_frame(f) for f in container.decode(video=0)]
+    fast, _ = drain_file(media / "h264.mp4")
+    capture = Capture(PyAVFileReader(media / "h264.mp4", fast_decode=False), SourceConfig(uri="x"))
+    capture.start()
+    conformant = [item.frame.bgr for item in drain(capture)]
+    assert all(np.array_equal(a, b) for a, b in zip(conformant, standard, strict=True))
+    diffs = [np.abs(a.bgr.astype(int) - b.astype(int)).mean() for a, b in zip(fast, standard, strict=True)]
+    assert 0.0 < max(diffs) < 2.0  # the deblocking filter was skipped, and the picture is the same
+    assert make_reader(SourceConfig(uri=str(media / "h264.mp4"), decoder="pyav")).fast_decode
+    assert FAST_DECODE_OPTIONS == {"skip_loop_filter": "all", "flags2": "+fast"}
 
 
 def test_bgr_from_planes_matches_swscale_and_other_formats_take_swscale(media):
