@@ -11,7 +11,9 @@ endpoints) and stops after ``frames``; the worker prints one JSON line with this
 - ``latency_ms_p50`` / ``p99``: frame decoded -> update published, of the slowest output;
 - ``cpu_ms_per_frame``: the process's CPU per frame (decoder, pipeline, outputs), and
   ``pipeline_cpu_ms_per_frame``: ``TrackingPipeline.process`` alone;
-- ``rss_mb``: resident set at the end (MiB).
+- ``rss_mb``: resident set at the end (MiB); ``rss_mb_settled``: at ``SETTLE_S`` into the measured
+  window (at its start for a run shorter than twice that), and ``rss_growth_percent`` from there
+  to the end (a soak's figure).
 """
 
 from __future__ import annotations
@@ -21,22 +23,24 @@ import logging
 import sys
 from pathlib import Path
 
-import psutil
-
 from dronekey.daemon.bench.bench_setup import BenchSetup
 from dronekey.daemon.bench.daemon_run import local_endpoints, run_daemon, signal_monitor
 from dronekey.daemon.bench.errors import BenchError
-from dronekey.daemon.bench.meter import MIB, Meter
+from dronekey.daemon.bench.meter import Meter
 from dronekey.daemon.bench.pipeline import worst_latency
 from dronekey.daemon.sources.opencv_readers import quiet_native_logs
 
-__all__ = ["run_camera"]
+__all__ = ["SETTLE_S", "run_camera"]
+
+SETTLE_S = 60.0  # a long run's memory growth counts from this far into the measured window
 
 
 def run_camera(setup: BenchSetup, camera_id: str, frames: int, warmup: int, clip_fps: float) -> dict:
     """Run one paced daemon for ``frames`` frames of a clip at ``clip_fps``; this camera's figures
     (module docstring)."""
-    meter = Meter(frames, warmup, camera_id)
+    measured = frames - warmup
+    settle = warmup + (round(SETTLE_S * clip_fps) if measured >= 2 * SETTLE_S * clip_fps else 0)
+    meter = Meter(frames, warmup, camera_id, rss=True, settle=settle)
     with local_endpoints() as outputs:
         config = setup.config(frames, outputs, realtime=True)
         config = config.model_copy(update={"camera": config.camera.model_copy(update={"id": camera_id})})
@@ -53,7 +57,11 @@ def run_camera(setup: BenchSetup, camera_id: str, frames: int, warmup: int, clip
         "latency_ms_p99": round(p99, 2),
         "cpu_ms_per_frame": round(1e3 * cpu_s / n, 2),
         "pipeline_cpu_ms_per_frame": round(1e3 * meter.pipeline_cpu_s / n, 2),
-        "rss_mb": round(psutil.Process().memory_info().rss / MIB, 1),
+        "rss_mb": round(meter.end.rss_mb, 1),
+        "rss_mb_settled": round(meter.settled.rss_mb, 1),
+        "rss_growth_percent": round(
+            100.0 * (meter.end.rss_mb - meter.settled.rss_mb) / meter.settled.rss_mb, 2
+        ),
     }
 
 

@@ -9,7 +9,8 @@ reader's CPU per frame; the workers measure the pipeline's. The report:
 - ``cameras``: per camera, achieved ``fps``, ``dropped`` frames, ``latency_ms_p50`` / ``p99``
   (frame decoded -> published), CPU and RSS (``camera_worker.py``);
 - in total: ``decode_cpu_ms_per_frame`` (decode-only pass), ``pipeline_cpu_ms_per_frame`` (mean over
-  the cameras), ``cpu_ms_per_frame`` (whole processes, outputs included), ``rss_mb`` (the sum);
+  the cameras), ``cpu_ms_per_frame`` (whole processes, outputs included), ``rss_mb`` (the sum),
+  ``rss_growth_percent_worst`` (the largest camera's growth from a minute in to the end: a soak);
 - ``cpu_limit_fps``: frames per second the cores can do given those two figures (``cpu_limit.py``),
   and ``fps_total`` / ``cpu_limit_fps`` as ``load_vs_cpu_limit``.
 """
@@ -132,6 +133,7 @@ def run_cameras_bench(
         "pipeline_cpu_ms_per_frame": round(pipeline_ms, 2),
         "cpu_ms_per_frame": round(sum(c["cpu_ms_per_frame"] for c in cameras) / count, 2),
         "rss_mb": round(sum(c["rss_mb"] for c in cameras), 1),
+        "rss_growth_percent_worst": max(c["rss_growth_percent"] for c in cameras),
         "cores": cores,
         "cpu_limit_fps": round(limit, 1) if math.isfinite(limit) else None,
         "load_vs_cpu_limit": round(fps_total / limit, 3) if math.isfinite(limit) else None,

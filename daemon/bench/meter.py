@@ -42,10 +42,14 @@ class Meter:
 
     ``process`` forwards to ``TrackingPipeline.process`` and stamps (``Stamp``) the end of frame
     ``warmup`` (``start``) and of the last frame (``end``); with ``rss`` the stamps hold the resident
-    set and every 100th frame is stamped too (``last``, what an interrupted soak reports).
+    set and every 100th frame is stamped too (``last``, what an interrupted soak reports), and the
+    end of frame ``settle`` (``settled``: where a long run's memory growth is counted from, past
+    the first minutes' one-off allocations).
     """
 
-    def __init__(self, frames: int, warmup: int, desc: str, rss: bool = False) -> None:
+    def __init__(
+        self, frames: int, warmup: int, desc: str, rss: bool = False, settle: int | None = None
+    ) -> None:
         self.total = frames
         self.warmup = warmup
         self.frames = 0
@@ -53,6 +57,8 @@ class Meter:
         self.start: Stamp | None = None
         self.end: Stamp | None = None
         self.last: Stamp | None = None
+        self.settled: Stamp | None = None
+        self._settle = settle
         self.pipeline = None
         self.pipeline_cpu_s = 0.0  # CPU time in process() (its thread and helpers), after warm-up
         self._rss = rss
@@ -78,6 +84,8 @@ class Meter:
         self.modes[output.mode] += 1
         if self.frames == self.warmup:
             self.start = self._stamp()
+        if self.frames == self._settle:
+            self.settled = self._stamp()
         if self.frames == self.total:
             self.end = self._stamp()
         elif self._rss and self.frames % 100 == 0:

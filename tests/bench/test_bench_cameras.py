@@ -12,7 +12,7 @@ from test_bench import common
 
 CAMERA_KEYS = {
     "camera", "frames", "fps", "clip_fps", "dropped", "latency_ms_p50", "latency_ms_p99",
-    "cpu_ms_per_frame", "pipeline_cpu_ms_per_frame", "rss_mb",
+    "cpu_ms_per_frame", "pipeline_cpu_ms_per_frame", "rss_mb", "rss_mb_settled", "rss_growth_percent",
 }  # fmt: skip
 
 
@@ -40,6 +40,10 @@ def test_two_cameras_report_each_and_the_cpu_limit(assets):
     per_frame_ms = report["decode_cpu_ms_per_frame"] + report["pipeline_cpu_ms_per_frame"]
     assert report["cpu_limit_fps"] == pytest.approx(report["cores"] * 1000 / per_frame_ms, rel=0.02)
     assert report["rss_mb"] == pytest.approx(sum(c["rss_mb"] for c in report["cameras"]), abs=0.2)
+    for cam in report["cameras"]:  # a 2 s run counts its growth from the end of the warm-up
+        growth = 100 * (cam["rss_mb"] - cam["rss_mb_settled"]) / cam["rss_mb_settled"]
+        assert cam["rss_mb_settled"] > 0 and cam["rss_growth_percent"] == pytest.approx(growth, abs=0.02)
+    assert report["rss_growth_percent_worst"] == max(c["rss_growth_percent"] for c in report["cameras"])
 
 
 def test_table_and_bad_input(assets, tmp_path):
