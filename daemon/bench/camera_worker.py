@@ -11,9 +11,13 @@ endpoints) and stops after ``frames``; the worker prints one JSON line with this
 - ``latency_ms_p50`` / ``p99``: frame decoded -> update published, of the slowest output;
 - ``cpu_ms_per_frame``: the process's CPU per frame (decoder, pipeline, outputs), and
   ``pipeline_cpu_ms_per_frame``: ``TrackingPipeline.process`` alone;
-- ``rss_mb``: resident set at the end (MiB); ``rss_mb_settled``: at ``SETTLE_S`` into the measured
-  window (at its start for a run shorter than twice that), and ``rss_growth_percent`` from there
-  to the end (a soak's figure).
+- ``rss_mb``: resident set at the end (MiB); ``rss_mb_settled``: ``SETTLE_S`` of the clip's frames
+  into the measured window (at its start for a run shorter than twice that), and
+  ``rss_growth_percent`` from there to the end (a soak's figure).
+
+The measured window ends after its frames or after its seconds, whichever comes first: a camera that
+falls behind its clip is stopped at the run's time (a 1-hour soak of cameras at 19 FPS against a
+30 FPS clip had been on course for 95 minutes), and its shortfall counts as dropped frames.
 """
 
 from __future__ import annotations
@@ -40,11 +44,15 @@ def run_camera(setup: BenchSetup, camera_id: str, frames: int, warmup: int, clip
     (module docstring)."""
     measured = frames - warmup
     settle = warmup + (round(SETTLE_S * clip_fps) if measured >= 2 * SETTLE_S * clip_fps else 0)
-    meter = Meter(frames, warmup, camera_id, rss=True, settle=settle)
+    signals = signal_monitor(install=True)
+    # A camera that cannot keep up with its clip stops at the run's time, not after its frames.
+    meter = Meter(
+        frames, warmup, camera_id, rss=True, settle=settle, seconds=measured / clip_fps, stop=signals.stop
+    )
     with local_endpoints() as outputs:
         config = setup.config(frames, outputs, realtime=True)
         config = config.model_copy(update={"camera": config.camera.model_copy(update={"id": camera_id})})
-        app = run_daemon(config, meter, signal_monitor(install=True))
+        app = run_daemon(config, meter, signals)
     n, wall_s, cpu_s = meter.window()
     p50, p99, _ = worst_latency(app, warmup)
     return {

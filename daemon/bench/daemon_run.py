@@ -79,7 +79,8 @@ def run_daemon(config: DaemonConfig, meter: Meter, signals: SignalMonitor) -> Da
     """Run ``DaemonApp`` to its end with ``meter`` as the pipeline; returns the app (for its outputs).
 
     A signal seen by ``signals`` (``SignalMonitor``) stops it the daemon's way (outputs closed) and
-    raises ``BenchInterruptedError``.
+    raises ``BenchInterruptedError``; a meter whose time ran out (``Meter.out_of_time``) stops it the
+    same way, without a signal, and that is a normal end.
     """
     app = DaemonApp(
         config, signals=signals, notifier=SystemdNotifier(environ={}), pipeline_factory=meter.factory
@@ -91,7 +92,7 @@ def run_daemon(config: DaemonConfig, meter: Meter, signals: SignalMonitor) -> Da
     finally:
         meter.close()
     check_signals(signals, meter.frames)
-    if code != ExitCode.OK:
+    if code != ExitCode.OK and not meter.out_of_time:  # a timed run stops through the stop event
         raise BenchError(
             f"the daemon stopped with exit code {int(code)} ({code.name}) after {meter.frames} frames"
         )

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 import resource
 import sys
+import threading
 import time
 from collections import Counter
 from typing import NamedTuple
@@ -44,11 +45,20 @@ class Meter:
     ``warmup`` (``start``) and of the last frame (``end``); with ``rss`` the stamps hold the resident
     set and every 100th frame is stamped too (``last``, what an interrupted soak reports), and the
     end of frame ``settle`` (``settled``: where a long run's memory growth is counted from, past
-    the first minutes' one-off allocations).
+    the first minutes' one-off allocations). With ``seconds``, the end is stamped at the first frame
+    that many seconds after the start if ``frames`` have not come by then (a camera that cannot
+    keep up with its clip), and ``stop`` (the daemon's stop event) is set: the run lasts its time.
     """
 
     def __init__(
-        self, frames: int, warmup: int, desc: str, rss: bool = False, settle: int | None = None
+        self,
+        frames: int,
+        warmup: int,
+        desc: str,
+        rss: bool = False,
+        settle: int | None = None,
+        seconds: float | None = None,
+        stop: threading.Event | None = None,
     ) -> None:
         self.total = frames
         self.warmup = warmup
@@ -58,7 +68,10 @@ class Meter:
         self.end: Stamp | None = None
         self.last: Stamp | None = None
         self.settled: Stamp | None = None
+        self.out_of_time = False  # the end was stamped at ``seconds``, before ``frames``
         self._settle = settle
+        self._seconds = seconds
+        self._stop = stop
         self.pipeline = None
         self.pipeline_cpu_s = 0.0  # CPU time in process() (its thread and helpers), after warm-up
         self._rss = rss
@@ -88,10 +101,24 @@ class Meter:
             self.settled = self._stamp()
         if self.frames == self.total:
             self.end = self._stamp()
+        elif self._past_time():
+            self.end = self._stamp()
+            self.out_of_time = True
+            if self._stop is not None:
+                self._stop.set()
         elif self._rss and self.frames % 100 == 0:
             self.last = self._stamp()
         self._bar.update(1)
         return output
+
+    def _past_time(self) -> bool:
+        """Whether ``seconds`` have gone by since the start stamp while the end is still to come."""
+        return (
+            self._seconds is not None
+            and self.start is not None
+            and self.end is None
+            and time.perf_counter() - self.start.wall_s >= self._seconds
+        )
 
     def _stamp(self) -> Stamp:
         rss = self._process.memory_info().rss / MIB if self._rss else math.nan

@@ -32,7 +32,8 @@ def test_two_cameras_report_each_and_the_cpu_limit(assets):
     assert report["count"] == 2 and [c["camera"] for c in report["cameras"]] == ["cam0", "cam1"]
     for cam in report["cameras"]:
         assert set(cam) == CAMERA_KEYS
-        assert cam["frames"] == 60 and cam["clip_fps"] == pytest.approx(30)  # 2 s at 30 fps
+        assert 0 < cam["frames"] <= 60 and cam["clip_fps"] == pytest.approx(30)  # 2 s at 30 fps at most
+        assert cam["frames"] == 60 or cam["dropped"] > 0  # a camera behind its clip stops at 2 s
         assert 0 < cam["fps"] <= 31 and cam["dropped"] >= 0  # paced: never faster than the clip
         assert 0 < cam["latency_ms_p50"] <= cam["latency_ms_p99"]
         assert 0 < cam["pipeline_cpu_ms_per_frame"] < cam["cpu_ms_per_frame"]
@@ -78,3 +79,34 @@ def test_a_worker_that_logs_more_than_a_pipe_holds_does_not_stall_the_run(assets
     setup = BenchSetup(Path(assets / "clip.mp4"), assets / "camera.yaml", assets / "untrained.onnx")
     result = bench_cameras.run_cameras_bench(setup, count=2, seconds=1.0, signals=SignalMonitor())
     assert [c["fps"] for c in result["cameras"]] == [1.0, 1.0]
+
+
+def test_a_camera_that_falls_behind_stops_at_the_run_time():
+    """The meter ends a camera's window at its seconds when its frames have not all come (a camera
+    slower than its clip), and asks the daemon to stop; a camera that keeps up ends on its frames."""
+    import threading
+    import time
+    from types import SimpleNamespace
+
+    from dronekey.daemon.bench.meter import Meter
+
+    class SlowPipeline:
+        def process(self, frame):
+            time.sleep(0.01)
+            return SimpleNamespace(mode="track")
+
+    stop = threading.Event()
+    meter = Meter(1000, 2, "slow", rss=True, settle=2, seconds=0.1, stop=stop)
+    meter.pipeline = SlowPipeline()
+    while not stop.is_set() and meter.frames < 1000:
+        meter.process(None)
+    meter.close()
+    frames, wall_s, _ = meter.window()
+    assert meter.out_of_time and stop.is_set() and 2 < meter.frames < 1000
+    assert frames == meter.frames - 2 and 0.1 <= wall_s < 0.5
+    quick = Meter(5, 2, "quick", seconds=60.0, stop=threading.Event())
+    quick.pipeline = SlowPipeline()
+    for _ in range(5):
+        quick.process(None)
+    quick.close()
+    assert quick.window()[0] == 3 and not quick.out_of_time
