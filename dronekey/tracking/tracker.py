@@ -179,9 +179,12 @@ class Tracker:
         for track_id, j in pairs:
             track = self._tracks[track_id]
             self._apply(track, measurements[j], scores[j], keypoints_px[j], heading_p[j], changes[j])
-        matched = {track_id for track_id, _ in pairs}
+        matched = dict(pairs)  # track id -> its measurement's index
+        dropped = self._merge_duplicates(
+            t_ns, matched, measurements, scores, keypoints_px, heading_p, changes
+        )
 
-        reports: list[Track] = []
+        reports: list[Track] = [track.to_track(TrackStatus.LOST) for track in dropped]
         for track in list(self._tracks.values()):
             if track.track_id not in matched:
                 self._miss(track)
@@ -286,6 +289,53 @@ class Tracker:
         pairs = [(ids[i], int(j)) for i, j in zip(rows, cols, strict=True) if cost[i, j] < _FORBIDDEN]
         used = {j for _, j in pairs}
         return pairs, [j for j in range(len(measurements)) if j not in used]
+
+    def _merge_duplicates(
+        self, t_ns: int, matched: dict[int, int], measurements, scores, keypoints_px, heading_p, changes
+    ) -> list[TrackRecord]:
+        """Drop each duplicate (``_duplicates``) of a measured track; the older of the two (more
+        hits) keeps its id and history, and takes this frame's measurement if it was the other's.
+        Returns the dropped tracks (``matched`` is updated)."""
+        dropped = []
+        for duplicate_id, measured_id in self._duplicates(t_ns, set(matched)).items():
+            if duplicate_id not in self._tracks or measured_id not in self._tracks:
+                continue  # already merged into another
+            keep, drop = self._tracks[duplicate_id], self._tracks[measured_id]
+            if keep.hits <= drop.hits:
+                keep, drop = drop, keep
+            elif measured_id in matched:
+                j = matched.pop(measured_id)
+                self._apply(keep, measurements[j], scores[j], keypoints_px[j], heading_p[j], changes[j])
+                matched[keep.track_id] = j
+            log.debug("track %d dropped: it follows track %d's drone", drop.track_id, keep.track_id)
+            matched.pop(drop.track_id, None)
+            dropped.append(self._tracks.pop(drop.track_id))
+        return dropped
+
+    def _duplicates(self, t_ns: int, matched: set[int]) -> dict[int, int]:
+        """Tracks without a measurement this frame that follow the drone of a track with one
+        (``TrackerConfig.merge_min_iou``, ``merge_range_ratio``): {duplicate id: measured track id}."""
+        cfg = self.config
+        out: dict[int, int] = {}
+        for track in self._tracks.values():
+            expected = track.keypoint_motion.predicted_box(t_ns)
+            if track.track_id in matched or expected is None:
+                continue
+            range_m = float(np.linalg.norm(track.position.position_m))
+            for other_id in sorted(matched):
+                other = self._tracks[other_id]
+                other_range_m = float(np.linalg.norm(other.position.position_m))
+                if (
+                    abs(range_m / other_range_m - 1.0) <= cfg.merge_range_ratio
+                    and box_iou(expected, keypoint_box(other.keypoints_px)) >= cfg.merge_min_iou
+                    and track.position.mahalanobis_sq(
+                        other.position.position_m, other.position.covariance[:3, :3]
+                    )
+                    <= cfg.position_gate_chi2
+                ):
+                    out[track.track_id] = other_id
+                    break
+        return out
 
     def _apply(
         self,

@@ -67,6 +67,18 @@ class TrackerConfig:
         ``confirm_min_change`` is lost: it is clutter that a moving thing (a wire, a bird) passed
         while it was confirmed. One drone detection in 400 changed less on the tuning seeds; 10 in
         a row (a third of a second at 30 fps) leaves a wide margin.
+    merge_min_iou, merge_range_ratio : a track that got no measurement this frame is a duplicate of
+        one that did, and is dropped at once instead of coasting (and being published) beside it,
+        when its expected keypoint box overlaps the measured track's keypoints by at least
+        ``merge_min_iou`` (IoU), its range is within ``merge_range_ratio`` (relative) of the
+        measured track's, and the two positions are within the position gate of each other
+        (``position_gate_chi2``, both covariances). Two tracks on one drone arise when a crop
+        reads a drone another track already holds: the pipeline gives the reading to one of them
+        (``dronekey.pipeline``, one reading per drone), and the other used to coast for up to
+        ``max_coast_s``, its range drifting on its velocity (a flying object in a drone-free tuning
+        sequence held two confirmed tracks for 25 frames). Drones that cross at different ranges
+        (one passing in front of the other) differ in range by more than the ratio and keep their
+        tracks through the occlusion.
     heading_evidence_weight : weight of one frame's front/back log-odds.
     heading_switch_log_odds : log-odds against the followed front at which a track turns around.
     heading_confidence_cap : the most log-odds a track can gather either way (7: about 1000 to 1).
@@ -97,6 +109,8 @@ class TrackerConfig:
     confirm_min_presence: float = 0.98
     confirm_min_change: float = 4.0
     max_still_hits: int = 10
+    merge_min_iou: float = 0.5
+    merge_range_ratio: float = 0.1
     heading_evidence_weight: float = 0.3
     heading_switch_log_odds: float = 1.5
     heading_confidence_cap: float = 7.0
@@ -118,6 +132,8 @@ class TrackerConfig:
             ):
                 kind = "non-negative" if f.name in _MAY_BE_ZERO else "positive"
                 raise ValueError(f"TrackerConfig.{f.name} must be a {kind} finite number, got {value!r}")
+        if self.merge_min_iou > 1.0:
+            raise ValueError(f"TrackerConfig.merge_min_iou must be in (0, 1], got {self.merge_min_iou!r}")
         if self.confirm_window < self.confirm_hits:
             raise ValueError(
                 f"TrackerConfig.confirm_window must be >= confirm_hits ({self.confirm_hits}), "

@@ -145,3 +145,37 @@ def test_sim_swarm_is_a_daemon_source():
     assert first.bgr.shape == (1080, 1920, 3) and second.t_ns > first.t_ns >= 0
     assert end.ended
     reader.close()
+
+
+def test_a_second_track_on_one_drone_is_merged_into_the_older():
+    """A search reading of a drone that a track holds starts a second track on it; when only one
+    reading of the drone comes next, the two are merged at once (the older id stays, with the
+    reading) instead of the other coasting beside it for a second."""
+    tracker = Tracker()
+    drone, nudge = np.array([0.5, 0.2, 7.0]), np.array([0.01, 0.0, 0.05])
+    for frame in range(5):
+        update(tracker, frame, [drone])
+    tracks = update(tracker, 5, [drone, drone + nudge])  # the drone read twice
+    assert [tr.track_id for tr in tracks] == [1, 2]
+    tracks = update(tracker, 6, [drone + nudge])
+    assert [(tr.track_id, tr.status) for tr in tracks] == [(1, TrackStatus.CONFIRMED), (2, TrackStatus.LOST)]
+    assert tracks[0].hits == 7  # the reading went to the older track
+
+
+def test_drones_crossing_at_different_ranges_are_not_merged():
+    """One drone in front of another on the same line of sight: the far one's track coasts
+    through the occlusion (their ranges differ by far more than ``merge_range_ratio``)."""
+    tracker = Tracker()
+    near, far = np.array([0.0, 0.0, 6.0]), np.array([0.0, 0.0, 8.0])
+    for frame in range(5):
+        update(tracker, frame, [near, far])
+    tracks = update(tracker, 5, [near])
+    statuses = [(tr.track_id, tr.status) for tr in tracks]
+    assert statuses == [(1, TrackStatus.CONFIRMED), (2, TrackStatus.COASTING)]
+
+
+def test_merge_settings_are_checked():
+    with pytest.raises(ValueError, match="merge_min_iou"):
+        TrackerConfig(merge_min_iou=1.5)
+    with pytest.raises(ValueError, match="merge_range_ratio"):
+        TrackerConfig(merge_range_ratio=0.0)
