@@ -30,7 +30,7 @@ from pathlib import Path
 from dronekey.daemon.bench.bench_setup import BenchSetup
 from dronekey.daemon.bench.daemon_run import local_endpoints, run_daemon, signal_monitor
 from dronekey.daemon.bench.errors import BenchError
-from dronekey.daemon.bench.meter import Meter
+from dronekey.daemon.bench.meter import Meter, growth_percent
 from dronekey.daemon.bench.pipeline import worst_latency
 from dronekey.daemon.sources.opencv_readers import quiet_native_logs
 
@@ -67,9 +67,7 @@ def run_camera(setup: BenchSetup, camera_id: str, frames: int, warmup: int, clip
         "pipeline_cpu_ms_per_frame": round(1e3 * meter.pipeline_cpu_s / n, 2),
         "rss_mb": round(meter.end.rss_mb, 1),
         "rss_mb_settled": round(meter.settled.rss_mb, 1),
-        "rss_growth_percent": round(
-            100.0 * (meter.end.rss_mb - meter.settled.rss_mb) / meter.settled.rss_mb, 2
-        ),
+        "rss_growth_percent": growth_percent(meter.settled.rss_mb, meter.end.rss_mb),
     }
 
 

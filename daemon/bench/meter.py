@@ -16,9 +16,14 @@ from tqdm import tqdm
 from dronekey.daemon.app import default_pipeline_factory
 from dronekey.daemon.bench.errors import BenchError
 
-__all__ = ["MIB", "Meter", "Stamp", "peak_rss_mb"]
+__all__ = ["MIB", "Meter", "Stamp", "growth_percent", "peak_rss_mb"]
 
 MIB = float(1 << 20)
+
+
+def growth_percent(start_mb: float, end_mb: float) -> float:
+    """Resident-set growth from ``start_mb`` to ``end_mb``, percent of the start, 2 decimals."""
+    return round(100.0 * (end_mb - start_mb) / start_mb, 2)
 
 
 def peak_rss_mb() -> float:

@@ -20,7 +20,7 @@ import psutil
 from dronekey.daemon.bench.bench_setup import BenchSetup
 from dronekey.daemon.bench.daemon_run import local_endpoints, run_daemon, signal_monitor
 from dronekey.daemon.bench.errors import BenchError, BenchInterruptedError
-from dronekey.daemon.bench.meter import MIB, Meter, peak_rss_mb
+from dronekey.daemon.bench.meter import MIB, Meter, growth_percent, peak_rss_mb
 from dronekey.daemon.signals import SignalMonitor
 
 __all__ = ["run_soak"]
@@ -107,7 +107,7 @@ def run_soak(
         "cpu_percent": round(100.0 * cpu_s / wall_s, 1),
         "rss_mb_start": round(start_mb, 1),
         "rss_mb_end": round(end_mb, 1),
-        "rss_growth_percent": round(100.0 * (end_mb - start_mb) / start_mb, 2),
+        "rss_growth_percent": growth_percent(start_mb, end_mb),
         "rss_mb_per_1000_frames": round(slope, 3),
         "rss_mb_peak": round(peak_rss_mb(), 1),
         "outputs": {

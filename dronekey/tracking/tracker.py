@@ -303,7 +303,7 @@ class Tracker:
             keep, drop = self._tracks[duplicate_id], self._tracks[measured_id]
             if keep.hits <= drop.hits:
                 keep, drop = drop, keep
-            elif measured_id in matched:
+            else:  # the older track takes the reading
                 j = matched.pop(measured_id)
                 self._apply(keep, measurements[j], scores[j], keypoints_px[j], heading_p[j], changes[j])
                 matched[keep.track_id] = j
@@ -316,24 +316,26 @@ class Tracker:
         """Tracks without a measurement this frame that follow the drone of a track with one
         (``TrackerConfig.merge_min_iou``, ``merge_range_ratio``): {duplicate id: measured track id}."""
         cfg = self.config
+        measured = [
+            (track, float(np.linalg.norm(track.position.position_m)), keypoint_box(track.keypoints_px))
+            for track in (self._tracks[i] for i in sorted(matched))
+        ]
         out: dict[int, int] = {}
         for track in self._tracks.values():
             expected = track.keypoint_motion.predicted_box(t_ns)
             if track.track_id in matched or expected is None:
                 continue
             range_m = float(np.linalg.norm(track.position.position_m))
-            for other_id in sorted(matched):
-                other = self._tracks[other_id]
-                other_range_m = float(np.linalg.norm(other.position.position_m))
+            for other, other_range_m, other_box in measured:
                 if (
                     abs(range_m / other_range_m - 1.0) <= cfg.merge_range_ratio
-                    and box_iou(expected, keypoint_box(other.keypoints_px)) >= cfg.merge_min_iou
+                    and box_iou(expected, other_box) >= cfg.merge_min_iou
                     and track.position.mahalanobis_sq(
                         other.position.position_m, other.position.covariance[:3, :3]
                     )
                     <= cfg.position_gate_chi2
                 ):
-                    out[track.track_id] = other_id
+                    out[track.track_id] = other.track_id
                     break
         return out
 
