@@ -43,7 +43,8 @@ def test_two_cameras_report_each_and_the_cpu_limit(assets):
     assert report["rss_mb"] == pytest.approx(sum(c["rss_mb"] for c in report["cameras"]), abs=0.2)
     for cam in report["cameras"]:  # a 2 s run counts its growth from the end of the warm-up
         growth = 100 * (cam["rss_mb"] - cam["rss_mb_settled"]) / cam["rss_mb_settled"]
-        assert cam["rss_mb_settled"] > 0 and cam["rss_growth_percent"] == pytest.approx(growth, abs=0.02)
+        # recomputed from the two sizes as printed (0.1 MiB): within 0.05 % at a few hundred MiB
+        assert cam["rss_mb_settled"] > 0 and cam["rss_growth_percent"] == pytest.approx(growth, abs=0.05)
     assert report["rss_growth_percent_worst"] == max(c["rss_growth_percent"] for c in report["cameras"])
 
 
