@@ -18,7 +18,11 @@ class ModelConfig(Section):
     path: FilePath | None = Field(None, description="ONNX model; null: the model shipped with the package")
     drone: str = Field("mini2", description="drone spec name (mini2, air2s) or a spec YAML path")
     threads: int = Field(
-        1, ge=1, le=256, description="ONNX Runtime intra-op threads; 1 leaves the other cores to decoding"
+        1,
+        ge=1,
+        le=256,
+        description="ONNX Runtime intra-op threads; 1 leaves the other cores to decoding and other cameras; "
+        "2 lowers the latency of one camera watching several drones (docs/performance.md)",
     )
     mirror_average: bool = Field(
         True,

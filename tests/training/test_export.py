@@ -253,3 +253,17 @@ def test_weights_read_back_from_the_export_reproduce_the_network(trained_like, o
     assert torch.allclose(got.presence_logit, expected.presence_logit, atol=1e-3)
     with pytest.raises(OnnxWeightsError, match="model not found"):
         weights_from_onnx(onnx_path.parent / "missing.onnx", fresh)
+
+
+def test_extra_threads_sleep_between_calls_and_answer_as_one(onnx_path):
+    """With 2 intra-op threads the session's threads do not spin between calls (they would burn the
+    decoder's core), and the answers are the single-threaded session's."""
+    from dronekey.perception.keypoint_model import KeypointModel
+
+    one, two = KeypointModel(onnx_path, threads=1), KeypointModel(onnx_path, threads=2)
+    options = two.session.get_session_options()
+    assert options.get_session_config_entry("session.intra_op.allow_spinning") == "0"
+    crops = np.random.default_rng(5).integers(0, 256, (6, one.input_size, one.input_size, 3), dtype=np.uint8)
+    a, b = one.inference(one.preprocess(crops)), two.inference(two.preprocess(crops))
+    np.testing.assert_allclose(b.keypoints, a.keypoints, atol=1e-5)
+    np.testing.assert_allclose(b.presence, a.presence, atol=1e-5)
