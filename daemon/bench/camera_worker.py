@@ -13,7 +13,9 @@ endpoints) and stops after ``frames``; the worker prints one JSON line with this
   ``pipeline_cpu_ms_per_frame``: ``TrackingPipeline.process`` alone;
 - ``rss_mb``: resident set at the end (MiB); ``rss_mb_settled``: ``SETTLE_S`` of the clip's frames
   into the measured window (at its start for a run shorter than twice that), and
-  ``rss_growth_percent`` from there to the end (a soak's figure).
+  ``rss_growth_percent`` from there to the end (a soak's figure), and ``rss_trend_percent`` the
+  same along the line fitted to the resident set of every 100th frame from there to the end (not
+  decided by the allocator's swing at two single samples).
 
 The measured window ends after its frames or after its seconds, whichever comes first: a camera that
 falls behind its clip is stopped at the run's time (a 1-hour soak of cameras at 19 FPS against a
@@ -24,13 +26,14 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import sys
 from pathlib import Path
 
 from dronekey.daemon.bench.bench_setup import BenchSetup
 from dronekey.daemon.bench.daemon_run import local_endpoints, run_daemon, signal_monitor
 from dronekey.daemon.bench.errors import BenchError
-from dronekey.daemon.bench.meter import Meter, growth_percent
+from dronekey.daemon.bench.meter import Meter, growth_percent, trend_percent
 from dronekey.daemon.bench.pipeline import worst_latency
 from dronekey.daemon.sources.opencv_readers import quiet_native_logs
 
@@ -68,7 +71,13 @@ def run_camera(setup: BenchSetup, camera_id: str, frames: int, warmup: int, clip
         "rss_mb": round(meter.end.rss_mb, 1),
         "rss_mb_settled": round(meter.settled.rss_mb, 1),
         "rss_growth_percent": growth_percent(meter.settled.rss_mb, meter.end.rss_mb),
+        "rss_trend_percent": _finite_or_none(trend_percent(meter.rss_stamps)),
     }
+
+
+def _finite_or_none(value: float) -> float | None:
+    """JSON has no NaN: a figure a short run cannot give is null."""
+    return value if math.isfinite(value) else None
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -10,7 +10,9 @@ reader's CPU per frame; the workers measure the pipeline's. The report:
   (frame decoded -> published), CPU and RSS (``camera_worker.py``);
 - in total: ``decode_cpu_ms_per_frame`` (decode-only pass), ``pipeline_cpu_ms_per_frame`` (mean over
   the cameras), ``cpu_ms_per_frame`` (whole processes, outputs included), ``rss_mb`` (the sum),
-  ``rss_growth_percent_worst`` (the largest camera's growth from a minute in to the end: a soak);
+  ``rss_growth_percent_worst`` (the largest camera's growth from a minute in to the end: a soak)
+  and ``rss_trend_percent_worst`` (the same along each camera's fitted line; null when no camera
+  ran long enough to fit one);
 - ``cpu_limit_fps``: frames per second the cores can do given those two figures (``cpu_limit.py``),
   and ``fps_total`` / ``cpu_limit_fps`` as ``load_vs_cpu_limit``.
 """
@@ -134,6 +136,9 @@ def run_cameras_bench(
         "cpu_ms_per_frame": round(sum(c["cpu_ms_per_frame"] for c in cameras) / count, 2),
         "rss_mb": round(sum(c["rss_mb"] for c in cameras), 1),
         "rss_growth_percent_worst": max(c["rss_growth_percent"] for c in cameras),
+        "rss_trend_percent_worst": max(
+            (c["rss_trend_percent"] for c in cameras if c["rss_trend_percent"] is not None), default=None
+        ),
         "cores": cores,
         "cpu_limit_fps": round(limit, 1) if math.isfinite(limit) else None,
         "load_vs_cpu_limit": round(fps_total / limit, 3) if math.isfinite(limit) else None,

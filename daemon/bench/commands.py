@@ -166,15 +166,19 @@ def add_pipeline_command(subparsers) -> None:
     parser.set_defaults(handler=_run_pipeline_command)
 
 
+def _percent_or_dash(value: float | None) -> str:
+    return f"{value:8.2f}" if value is not None else f"{'-':>8s}"
+
+
 def _camera_lines(report: dict) -> str:
     """The cameras report as a table: one line per camera, then the totals."""
-    heads = ("fps", "dropped", "p50 ms", "p99 ms", "cpu ms", "rss MB", "rss +%")
+    heads = ("fps", "dropped", "p50 ms", "p99 ms", "cpu ms", "rss MB", "rss +%", "trend +%")
     lines = [f"{'camera':8s} " + " ".join(f"{h:>8s}" for h in heads)]
     for c in report["cameras"]:
         lines.append(
             f"{c['camera']:8s} {c['fps']:8.2f} {c['dropped']:8d} {c['latency_ms_p50']:8.2f} "
             f"{c['latency_ms_p99']:8.2f} {c['cpu_ms_per_frame']:8.2f} {c['rss_mb']:8.1f} "
-            f"{c['rss_growth_percent']:8.2f}"
+            f"{c['rss_growth_percent']:8.2f} {_percent_or_dash(c['rss_trend_percent'])}"
         )
     keys = (
         "fps_total",
@@ -184,6 +188,7 @@ def _camera_lines(report: dict) -> str:
         "cpu_ms_per_frame",
         "rss_mb",
         "rss_growth_percent_worst",
+        "rss_trend_percent_worst",
         "cores",
         "cpu_limit_fps",
         "load_vs_cpu_limit",

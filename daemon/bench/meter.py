@@ -10,13 +10,14 @@ import time
 from collections import Counter
 from typing import NamedTuple
 
+import numpy as np
 import psutil
 from tqdm import tqdm
 
 from dronekey.daemon.app import default_pipeline_factory
 from dronekey.daemon.bench.errors import BenchError
 
-__all__ = ["MIB", "Meter", "Stamp", "growth_percent", "peak_rss_mb"]
+__all__ = ["MIB", "Meter", "Stamp", "growth_percent", "peak_rss_mb", "trend_percent"]
 
 MIB = float(1 << 20)
 
@@ -24,6 +25,19 @@ MIB = float(1 << 20)
 def growth_percent(start_mb: float, end_mb: float) -> float:
     """Resident-set growth from ``start_mb`` to ``end_mb``, percent of the start, 2 decimals."""
     return round(100.0 * (end_mb - start_mb) / start_mb, 2)
+
+
+def trend_percent(stamps: list[Stamp]) -> float:
+    """Resident-set growth along the least-squares line through ``stamps`` (RSS against wall
+    clock), from the first stamp's time to the last's, percent of the line's value at the first;
+    NaN with fewer than three stamps. Unlike ``growth_percent`` of two single samples, it is not
+    decided by where the allocator's swing (+-2.5 % from one sample to the next, docs/performance.md)
+    happens to stand at the two ends."""
+    if len(stamps) < 3 or stamps[-1].wall_s <= stamps[0].wall_s:
+        return math.nan
+    t = np.array([s.wall_s for s in stamps]) - stamps[0].wall_s
+    slope, intercept = np.polyfit(t, [s.rss_mb for s in stamps], 1)
+    return round(100.0 * slope * t[-1] / intercept, 2)
 
 
 def peak_rss_mb() -> float:
@@ -48,8 +62,9 @@ class Meter:
 
     ``process`` forwards to ``TrackingPipeline.process`` and stamps (``Stamp``) the end of frame
     ``warmup`` (``start``) and of the last frame (``end``); with ``rss`` the stamps hold the resident
-    set and every 100th frame is stamped too (``last``, what an interrupted soak reports), and the
-    end of frame ``settle`` (``settled``: where a long run's memory growth is counted from, past
+    set and every 100th frame is stamped too (``last``, what an interrupted soak reports; from
+    ``settled`` on they are kept in ``rss_stamps``, the samples a memory trend is fitted to), and
+    the end of frame ``settle`` (``settled``: where a long run's memory growth is counted from, past
     the first minutes' one-off allocations). With ``seconds``, the end is stamped at the first frame
     that many seconds after the start if ``frames`` have not come by then (a camera that cannot
     keep up with its clip), and ``stop`` (the daemon's stop event) is set: the run lasts its time.
@@ -73,6 +88,7 @@ class Meter:
         self.end: Stamp | None = None
         self.last: Stamp | None = None
         self.settled: Stamp | None = None
+        self.rss_stamps: list[Stamp] = []  # every 100th frame's stamp from ``settled`` to ``end``
         self.out_of_time = False  # the end was stamped at ``seconds``, before ``frames``
         self._settle = settle
         self._seconds = seconds
@@ -104,17 +120,27 @@ class Meter:
             self.start = self._stamp()
         if self.frames == self._settle:
             self.settled = self._stamp()
+            self.rss_stamps.append(self.settled)
         if self.frames == self.total:
             self.end = self._stamp()
+            self._keep_rss(self.end)
         elif self._past_time():
             self.end = self._stamp()
+            self._keep_rss(self.end)
             self.out_of_time = True
             if self._stop is not None:
                 self._stop.set()
         elif self._rss and self.frames % 100 == 0:
             self.last = self._stamp()
+            self._keep_rss(self.last)
         self._bar.update(1)
         return output
+
+    def _keep_rss(self, stamp: Stamp) -> None:
+        """Keep a stamp taken after ``settled`` and up to ``end`` for the memory trend."""
+        after_settle = self.settled is not None and stamp.frames > self.settled.frames
+        if self._rss and after_settle and (self.end is None or stamp is self.end):
+            self.rss_stamps.append(stamp)
 
     def _past_time(self) -> bool:
         """Whether ``seconds`` have gone by since the start stamp while the end is still to come."""

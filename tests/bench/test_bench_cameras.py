@@ -13,6 +13,7 @@ from test_bench import common
 CAMERA_KEYS = {
     "camera", "frames", "fps", "clip_fps", "dropped", "latency_ms_p50", "latency_ms_p99",
     "cpu_ms_per_frame", "pipeline_cpu_ms_per_frame", "rss_mb", "rss_mb_settled", "rss_growth_percent",
+    "rss_trend_percent",
 }  # fmt: skip
 
 
@@ -46,6 +47,8 @@ def test_two_cameras_report_each_and_the_cpu_limit(assets):
         # recomputed from the two sizes as printed (0.1 MiB): within 0.05 % at a few hundred MiB
         assert cam["rss_mb_settled"] > 0 and cam["rss_growth_percent"] == pytest.approx(growth, abs=0.05)
     assert report["rss_growth_percent_worst"] == max(c["rss_growth_percent"] for c in report["cameras"])
+    trends = [c["rss_trend_percent"] for c in report["cameras"] if c["rss_trend_percent"] is not None]
+    assert report["rss_trend_percent_worst"] == max(trends, default=None)  # null (no NaN) when none
 
 
 def test_table_and_bad_input(assets, tmp_path):
@@ -111,3 +114,33 @@ def test_a_camera_that_falls_behind_stops_at_the_run_time():
         quick.process(None)
     quick.close()
     assert quick.window()[0] == 3 and not quick.out_of_time
+
+
+def test_the_memory_trend_is_the_fitted_line_not_two_samples():
+    """``trend_percent`` fits RSS against time: a swing at the last sample moves two-sample growth a
+    lot and the fitted rise a little; a steady climb is read in full. The meter keeps the stamps of
+    every 100th frame from the settle frame to the end, none after it."""
+    import threading
+    from types import SimpleNamespace
+
+    from dronekey.daemon.bench.meter import Meter, Stamp, growth_percent, trend_percent
+
+    flat = [Stamp(100 * k, float(k), 0.0, 500.0) for k in range(20)]
+    swung = [*flat[:-1], Stamp(1900, 19.0, 0.0, 512.5)]  # +2.5 % at the end only
+    climbing = [Stamp(100 * k, float(k), 0.0, 500.0 + k) for k in range(20)]
+    assert growth_percent(swung[0].rss_mb, swung[-1].rss_mb) == 2.5
+    assert 0 < trend_percent(swung) < 0.8
+    assert trend_percent(flat) == 0.0
+    assert trend_percent(climbing) == pytest.approx(100 * 19 / 500, abs=0.01)
+    assert trend_percent(flat[:2]) != trend_percent(flat[:2])  # NaN: two stamps fit no trend
+
+    class Pipeline:
+        def process(self, frame):
+            return SimpleNamespace(mode="track")
+
+    meter = Meter(1000, 50, "trend", rss=True, settle=250, stop=threading.Event())
+    meter.pipeline = Pipeline()
+    for _ in range(1200):  # the daemon may hand over frames after the end
+        meter.process(None)
+    meter.close()
+    assert [s.frames for s in meter.rss_stamps] == [250, 300, 400, 500, 600, 700, 800, 900, 1000]
