@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import json
 import logging
-import math
 import sys
 from pathlib import Path
 
@@ -35,6 +34,7 @@ from dronekey.daemon.bench.daemon_run import local_endpoints, run_daemon, signal
 from dronekey.daemon.bench.errors import BenchError
 from dronekey.daemon.bench.meter import Meter, growth_percent, trend_percent
 from dronekey.daemon.bench.pipeline import worst_latency
+from dronekey.daemon.messages import jsonable
 from dronekey.daemon.sources.opencv_readers import quiet_native_logs
 
 __all__ = ["SETTLE_S", "run_camera"]
@@ -71,13 +71,8 @@ def run_camera(setup: BenchSetup, camera_id: str, frames: int, warmup: int, clip
         "rss_mb": round(meter.end.rss_mb, 1),
         "rss_mb_settled": round(meter.settled.rss_mb, 1),
         "rss_growth_percent": growth_percent(meter.settled.rss_mb, meter.end.rss_mb),
-        "rss_trend_percent": _finite_or_none(trend_percent(meter.rss_stamps)),
+        "rss_trend_percent": jsonable(trend_percent(meter.rss_stamps)),  # null for a short run
     }
-
-
-def _finite_or_none(value: float) -> float | None:
-    """JSON has no NaN: a figure a short run cannot give is null."""
-    return value if math.isfinite(value) else None
 
 
 def main(argv: list[str] | None = None) -> int:
