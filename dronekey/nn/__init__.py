@@ -4,4 +4,5 @@
 ``backbones``    the ResNet-50 trunk and the edge backbone
 ``loss``         the pose-adaptive Mahalanobis loss and its schedules
 ``heatmap_aux``  training-only propeller heatmaps on the backbone's stride-8/16 maps
+``heading_net``  the front/back classifier (a small CNN, antisymmetric under a half turn)
 """

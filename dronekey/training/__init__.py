@@ -16,4 +16,7 @@
 ``quantize``        fp32 ONNX -> static int8 (QDQ), calibrated on crops
 ``onnx_weights``    an exported model's weights read back into the network (fine-tuning)
 ``spread_fit``      ``dronekey-calibrate-spread``: the model's spread calibration, fitted and stored
+``heading_cli``     ``dronekey-train-heading``: render, train and export the front/back classifier
+``heading_data``    its data: sampler crops, the keypoint network's keypoints, front-up patches, labels
+``heading_train``   its training loop and ONNX export
 """

@@ -1,4 +1,4 @@
-"""Console entry points of ``dronekey-train`` and ``dronekey-export``.
+"""Console entry points of ``dronekey-train``, ``dronekey-train-heading`` and ``dronekey-export``.
 
 They need torch, which the runtime install (``pip install dronekey``) leaves out. This module
 imports nothing of torch, so a runtime install answers with one line naming the extra to install
@@ -11,7 +11,7 @@ from __future__ import annotations
 import importlib.util
 import sys
 
-__all__ = ["calibrate_spread_main", "export_main", "train_main"]
+__all__ = ["calibrate_spread_main", "export_main", "train_heading_main", "train_main"]
 
 TRAIN_EXTRA_HINT = "pip install 'dronekey[train]' (torch==2.13.0, the CPU wheel)"
 
@@ -29,6 +29,16 @@ def train_main(argv: list[str] | None = None) -> int:
         print(message, file=sys.stderr)
         return 2
     from dronekey.training.train_cli import main  # torch from here on
+
+    return main(argv)
+
+
+def train_heading_main(argv: list[str] | None = None) -> int:
+    """``dronekey-train-heading``."""
+    if message := torch_missing_message("dronekey-train-heading"):
+        print(message, file=sys.stderr)
+        return 2
+    from dronekey.training.heading_cli import main  # torch from here on
 
     return main(argv)
 

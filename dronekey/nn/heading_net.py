@@ -1,0 +1,71 @@
+"""The front/back classifier in torch (training and export; the runtime runs its ONNX export through
+``dronekey.perception.heading_model``).
+
+Input: a 64 px BGR patch turned front-up around the keypoints (``canonical_patches``), normalised
+by ``patches_to_tensor``. Output: the logit that the nose is at the top. A small CNN whose head
+keeps where its features are (flatten, not global pooling: "top" against "bottom" is the answer),
+wrapped in ``Antisymmetric`` so that the patch turned 180 degrees (the twin order) gets exactly
+the opposite logit.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+__all__ = ["Antisymmetric", "HeadingNet"]
+
+
+class HeadingNet(nn.Module):
+    """Four 3x3 conv blocks (stride 2, then 2x2 max-pools: 64 -> 4 px), flatten, MLP -> one logit.
+
+    Parameters
+    ----------
+    channels : the four blocks' widths.
+    patch_size : input side, px (a multiple of 16).
+    """
+
+    def __init__(self, channels: tuple[int, int, int, int] = (16, 32, 64, 96), patch_size: int = 64) -> None:
+        super().__init__()
+        if patch_size % 16:
+            raise ValueError(f"patch_size must be a multiple of 16, got {patch_size}")
+        c = channels
+        self.features = nn.Sequential(
+            _block(3, c[0], stride=2),
+            _block(c[0], c[1]),
+            nn.MaxPool2d(2),
+            _block(c[1], c[2]),
+            nn.MaxPool2d(2),
+            _block(c[2], c[3]),
+            nn.MaxPool2d(2),
+        )
+        self.head = nn.Sequential(
+            nn.Flatten(),
+            nn.Dropout(0.2),
+            nn.Linear(c[3] * (patch_size // 16) ** 2, 64),
+            nn.ReLU(inplace=True),
+            nn.Linear(64, 1),
+        )
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.head(self.features(x)).squeeze(1)
+
+
+class Antisymmetric(nn.Module):
+    """``logit(x) = (f(x) - f(rot180(x))) / 2``: the twin order gets exactly ``-logit``, so the
+    exported probabilities of an order and its twin always sum to 1."""
+
+    def __init__(self, f: nn.Module) -> None:
+        super().__init__()
+        self.f = f
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        both = self.f(torch.cat([x, torch.flip(x, dims=(2, 3))]))
+        n = x.shape[0]
+        return 0.5 * (both[:n] - both[n:])
+
+
+def _block(cin: int, cout: int, stride: int = 1) -> nn.Sequential:
+    return nn.Sequential(
+        nn.Conv2d(cin, cout, 3, stride, 1, bias=False), nn.BatchNorm2d(cout), nn.ReLU(inplace=True)
+    )

@@ -1,0 +1,59 @@
+"""The front/back classifier's recipe end to end on a few rendered crops: shards labelled with the
+keypoint network's own keypoints, a short training run, the ONNX export, and the runtime loading it."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from dronekey.nn.heading_net import Antisymmetric, HeadingNet
+from dronekey.perception.heading_model import HeadingModel
+from dronekey.training.heading_cli import main as heading_main
+from dronekey.training.heading_data import load_shards, write_shards
+from dronekey.training.heading_train import HeadingRecipe, export_heading_model, train_heading
+
+
+def test_antisymmetric_wrapper_gives_the_turned_patch_the_opposite_logit():
+    torch.manual_seed(0)
+    model = Antisymmetric(HeadingNet()).eval()
+    x = torch.randn(3, 3, 64, 64)
+    with torch.no_grad():
+        np.testing.assert_allclose(model(torch.flip(x, dims=(2, 3))), -model(x), atol=1e-5)
+
+
+def test_shards_label_the_networks_order_against_the_truth(tmp_path):
+    paths = write_shards(tmp_path, seed=5, shards=1, shard_size=24)
+    with np.load(paths[0]) as d:
+        assert d["patch"].shape[1:] == (64, 64, 3) and d["patch"].dtype == np.uint8
+        assert len(d["y"]) == len(d["err"]) == len(d["ratio"]) > 10
+        np.testing.assert_array_equal(d["y"], d["err"] < d["err_twin"])
+    again = write_shards(tmp_path, seed=5, shards=1, shard_size=24)  # kept, not rendered again
+    assert again == paths
+    patches, labels = load_shards(paths, decided=1.0, min_axis_ratio=0.0)
+    assert len(patches) == len(labels) > 10
+
+
+def test_train_export_and_load(tmp_path):
+    rng = np.random.default_rng(0)
+    # a toy task with the real shapes: a bright blob at the top (label 1) or at the bottom (0)
+    patches = np.full((512, 64, 64, 3), 90, np.uint8)
+    labels = rng.integers(0, 2, 512).astype(np.float32)
+    for p, y in zip(patches, labels, strict=True):
+        row = 12 if y else 44
+        p[row : row + 8, 28:36] = 230
+    model, history = train_heading(
+        (patches, labels), (patches[:128], labels[:128]), tmp_path, HeadingRecipe(epochs=3, batch=64)
+    )
+    assert (tmp_path / "last.pt").is_file() and (tmp_path / "history.json").is_file()
+    assert history[-1]["accuracy"] > 0.9
+    path = export_heading_model(model, tmp_path / "heading.onnx", {"trained_on": {"toy": True}})
+    runtime = HeadingModel(path)
+    assert runtime.metadata["trained_on"] == {"toy": True}
+    logits = runtime.inference(np.zeros((2, 3, 64, 64), np.float32))
+    assert logits.shape == (2,)
+
+
+def test_cli_refuses_a_validation_seed_it_trains_on(capsys):
+    assert heading_main(["--seeds", "3", "--val-seed", "3"]) == 2
+    assert "also a training seed" in capsys.readouterr().err
+    assert heading_main(["--shards", "0"]) == 2
