@@ -78,6 +78,7 @@ def default_pipeline_factory(camera: CameraModel, config: DaemonConfig) -> Pipel
         drone=m.drone,
         threads=m.threads,
         mirror_average=m.mirror_average,
+        heading_model=(m.front_back_path or True) if m.front_back else False,
         tracker=TrackerConfig(max_tracks=t.max_tracks, confirm_min_change=t.confirm_min_change),
         search_every=t.search_every,
         search_more_every=t.search_more_every,

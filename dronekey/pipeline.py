@@ -33,6 +33,7 @@ from dronekey.geometry.camera import CalibrationError, CameraModel
 from dronekey.geometry.crop import CropPolicy
 from dronekey.geometry.drone_spec import DroneSpec, load_spec
 from dronekey.perception.frame_change import frame_change
+from dronekey.perception.heading_model import load_heading_model
 from dronekey.perception.keypoint_model import HEADING_TWIN, KeypointModel
 from dronekey.perception.keypoint_order import KeypointOrder
 from dronekey.perception.localizer import (
@@ -223,6 +224,9 @@ class TrackingPipeline:
         Drone spec name (``mini2``, ``air2s``), YAML file or spec: the 3D keypoints PnP uses.
     providers, threads, mirror_average : passed to ``KeypointModel`` (mirror averaging is on by
         default: a fifth less keypoint error for about 1.6x the inference time).
+    heading_model : the front/back classifier (``dronekey.perception.heading_model``): True the
+        shipped one, a path another, False none (the keypoint network's own head decides, which
+        answers 0.5 on every crop with the shipped network).
     localizer, tracker, plausibility : configs (defaults suit a small drone at 30 fps).
     keypoint_sigma_px, max_reprojection_frac : see ``PoseTracker``.
     search_every : frames between whole-frame searches while a confirmed track is measured (the
@@ -249,6 +253,7 @@ class TrackingPipeline:
         providers: list[str] | None = None,
         threads: int | None = None,
         mirror_average: bool = True,
+        heading_model: bool | str | Path = True,
         localizer: LocalizerConfig | None = None,
         tracker: TrackerConfig | None = None,
         keypoint_sigma_px: float = 1.5,
@@ -264,7 +269,11 @@ class TrackingPipeline:
         self.camera = camera
         self.spec: DroneSpec = drone if isinstance(drone, DroneSpec) else load_spec(drone)
         self.model = KeypointModel(
-            model_path, providers=providers, threads=threads, mirror_average=mirror_average
+            model_path,
+            providers=providers,
+            threads=threads,
+            mirror_average=mirror_average,
+            heading_model=load_heading_model(heading_model),
         )
         crop = CropPolicy(
             **{**self.model.metadata.get("crop_policy", {}), "input_size": self.model.input_size}
@@ -286,6 +295,7 @@ class TrackingPipeline:
                 "providers": list(self.model.providers),
                 "input_size": self.model.input_size,
                 "trained_on": self.model.metadata.get("trained_on"),
+                "front_back": str(heading.path) if (heading := self.model.heading_model) else None,
             },
             "drone": self.spec.to_dict(),
         }

@@ -20,6 +20,7 @@ class BenchSetup:
 
     source : video file (looped). calib, model : files (default: beside the video, the shipped
     model). decode_threads, model_threads : override ``source.decode_threads`` and ``model.threads``.
+    front_back : False turns ``model.front_back`` off (the front/back classifier's cost, measured).
     """
 
     source: Path
@@ -27,6 +28,7 @@ class BenchSetup:
     model: Path | None = None
     decode_threads: int | None = None
     model_threads: int | None = None
+    front_back: bool = True
 
     def check(self) -> None:
         """Raise ``BenchError`` naming the first missing input file."""
@@ -64,6 +66,8 @@ class BenchSetup:
         overrides.update(
             {key: (str(v) if isinstance(v, Path) else v, flag) for key, (v, flag) in optional.items() if v}
         )
+        if not self.front_back:
+            overrides["model.front_back"] = (False, "--no-front-back")
         if outputs is not None:
             mcap_dir, udp_port = outputs
             overrides.update(

@@ -86,6 +86,7 @@ def main(argv: list[str] | None = None) -> int:
         Path(args["model"]) if args.get("model") else None,
         args.get("decode_threads"),
         args.get("model_threads"),
+        args.get("front_back", True),
     )
     try:
         report = run_camera(setup, args["camera"], args["frames"], args["warmup"], args["clip_fps"])

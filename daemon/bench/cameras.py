@@ -50,6 +50,7 @@ def _worker_command(
         "model": str(setup.model) if setup.model else None,
         "decode_threads": setup.decode_threads,
         "model_threads": setup.model_threads,
+        "front_back": setup.front_back,
         "camera": camera_id,
         "frames": frames,
         "warmup": warmup,

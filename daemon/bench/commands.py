@@ -53,7 +53,9 @@ def _table(report: dict, keys: tuple[str, ...], width: int) -> str:
 
 
 def _setup(args: argparse.Namespace) -> BenchSetup:
-    return BenchSetup(args.source, args.calib, args.model, args.decode_threads, args.model_threads)
+    return BenchSetup(
+        args.source, args.calib, args.model, args.decode_threads, args.model_threads, not args.no_front_back
+    )
 
 
 def _run_bench(name: str, run: Callable) -> tuple[dict | None, int]:
@@ -131,6 +133,11 @@ def _common_arguments(parser: argparse.ArgumentParser) -> None:
         type=positive_int,
         default=None,
         help="ONNX Runtime intra-op threads (default: the daemon's, 1)",
+    )
+    parser.add_argument(
+        "--no-front-back",
+        action="store_true",
+        help="run without the front/back classifier (model.front_back false), to measure its cost",
     )
 
 

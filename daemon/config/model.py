@@ -13,7 +13,7 @@ __all__ = ["ModelConfig"]
 
 
 class ModelConfig(Section):
-    """The keypoint network and the drone it looks for."""
+    """The keypoint network, the front/back classifier and the drone it looks for."""
 
     path: FilePath | None = Field(None, description="ONNX model; null: the model shipped with the package")
     drone: str = Field("mini2", description="drone spec name (mini2, air2s) or a spec YAML path")
@@ -27,6 +27,14 @@ class ModelConfig(Section):
     mirror_average: bool = Field(
         True,
         description="also run each crop mirrored and average (a fifth less keypoint error, ~1.6x inference)",
+    )
+    front_back: bool = Field(
+        True,
+        description="decide each crop's front and back with the front/back classifier "
+        "(dronekey.perception.heading_model); false: the keypoint network's own head (a coin flip)",
+    )
+    front_back_path: FilePath | None = Field(
+        None, description="ONNX front/back classifier; null: the one shipped with the package"
     )
 
     @field_validator("drone")

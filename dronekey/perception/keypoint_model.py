@@ -10,6 +10,8 @@ output, ``heading``: the probability that its keypoints are in the spec's order 
 swaps the keypoints to the twin order) and hands the pipeline the probability of the order it
 returns (``KeypointDetection.heading_p`` in [0.5, 1]), so that the tracker can weigh it. A model
 without the output gives NaN: the order is the network's, its doubt unknown.
+With a ``HeadingModel`` (the shipped front/back classifier, which reads the nose from a patch turned
+front-up around the keypoints) its probability replaces the head's before that decision.
 
 The input size and normalisation are read from the model's metadata (written by
 ``dronekey.training.export``), so a model carries its own contract. torch is never imported here: the
@@ -32,6 +34,7 @@ import onnxruntime as ort
 import psutil
 
 from dronekey.geometry.crop import ROI, crop_square, from_normalised
+from dronekey.perception.heading_model import HeadingModel
 from dronekey.perception.keypoint_order import HEADING_TWIN
 from dronekey.perception.spread_calibration import SpreadCalibration
 from dronekey.types import KeypointDetection
@@ -61,6 +64,9 @@ HEADING_OUTPUT = "heading"  # optional fourth output: sigmoid of the front/back 
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
 SHIPPED_MODEL = "dronekey_edge.onnx"
+# The front/back classifier runs only on crops at least this likely to hold a drone (the localiser's
+# presence threshold, 0.5 by default, is above it), which keeps it off most of the search's crops.
+HEADING_MIN_PRESENCE = 0.3
 
 
 class ModelFormatError(ValueError):
@@ -211,6 +217,9 @@ class KeypointModel:
         How the keypoints' spread is de-compressed (``dronekey.perception.spread_calibration``);
         default: the one in the model's metadata, none if it has none. ``SpreadCalibration()``
         turns it off.
+    heading_model : HeadingModel, optional
+        The front/back classifier (``dronekey.perception.heading_model``): when given, its
+        probability decides each crop's keypoint order in place of the network's own head.
 
     Attributes
     ----------
@@ -230,8 +239,10 @@ class KeypointModel:
         threads: int | None = None,
         mirror_average: bool = False,
         spread_calibration: SpreadCalibration | None = None,
+        heading_model: HeadingModel | None = None,
     ) -> None:
         self.mirror_average = bool(mirror_average)
+        self.heading_model = heading_model
         self.path = Path(path) if path is not None else default_model_path()
         if not self.path.is_file():
             hint = (
@@ -354,9 +365,21 @@ class KeypointModel:
             return []
         crops = np.stack([crop_square(frame_bgr, tuple(roi), self.input_size) for roi in rois])
         if not self.mirror_average:
-            return self.postprocess(self.inference(self.preprocess(crops)), rois)
-        tensor = self.preprocess(crops)  # the mirrors are flipped after normalising: half the work
-        raw = self.inference(np.concatenate([tensor, tensor[..., ::-1]]))
-        return self.postprocess(mirror_averaged(raw, len(rois)), rois)
+            raw = self.inference(self.preprocess(crops))
+        else:
+            tensor = self.preprocess(crops)  # the mirrors are flipped after normalising: half the work
+            raw = mirror_averaged(self.inference(np.concatenate([tensor, tensor[..., ::-1]])), len(rois))
+        if self.heading_model is not None:  # the front/back classifier decides the order, not the head
+            raw = raw._replace(heading=self._classify_heading(crops, raw))
+        return self.postprocess(raw, rois)
 
     __call__ = detect
+
+    def _classify_heading(self, crops: np.ndarray, raw: RawOutputs) -> np.ndarray:
+        """The front/back classifier's probabilities; crops the network finds empty (presence below
+        ``HEADING_MIN_PRESENCE``, which no later stage keeps) get 0.5 without running it."""
+        heading = np.full(len(crops), 0.5, dtype=np.float32)
+        keep = np.flatnonzero(raw.presence >= HEADING_MIN_PRESENCE)
+        if len(keep):
+            heading[keep] = self.heading_model(crops[keep], raw.keypoints[keep])
+        return heading

@@ -76,6 +76,7 @@ def test_pipeline_reports_every_figure(assets):
     for output in details["paced"]["outputs"].values():
         assert output["published"] == 12 and output["errors"] == 0
     assert details["model_threads"] == 1 and details["decode_threads"] >= 1
+    assert details["front_back"].endswith("dronekey_heading.onnx")  # the shipped classifier, by default
 
 
 def test_pipeline_table(assets):
@@ -87,11 +88,12 @@ def test_pipeline_table(assets):
 def test_pipeline_thread_overrides_reach_the_daemon(assets):
     result = bench(
         "pipeline", *common(assets), "--frames", "10", "--latency-frames", "6", "--warmup", "2",
-        "--decode-threads", "2", "--model-threads", "2", "--json",
+        "--decode-threads", "2", "--model-threads", "2", "--no-front-back", "--json",
     )  # fmt: skip
     assert result.returncode == 0, result.stderr
     details = json.loads(result.stdout)["details"]
     assert details["decode_threads"] == 2 and details["model_threads"] == 2
+    assert details["front_back"] is None  # --no-front-back: the classifier's cost can be measured
 
 
 def test_soak_reports_rss_over_time(assets):

@@ -106,7 +106,8 @@ class RobustnessReport:
         lines = [
             f"robustness: {st['seed_set']} seeds {', '.join(map(str, st['seeds']))} "
             f"(scene seeds {st['scene_seeds']}), {st['frames']} frames per sequence at "
-            f"{st['size'][0]}x{st['size'][1]}, model {Path(st['model']).name}",
+            f"{st['size'][0]}x{st['size'][1]}, model {Path(st['model']).name}"
+            + (f", front/back {Path(st['front_back']).name}" if st.get("front_back") else ""),
             head,
             units,
             "-" * len(head),

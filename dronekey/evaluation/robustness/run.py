@@ -34,6 +34,7 @@ from dronekey.evaluation.robustness.scoring import (
     score_sequence,
 )
 from dronekey.evaluation.robustness.seed_sets import check_seeds, seed_ranges
+from dronekey.perception.heading_model import default_heading_model_path
 from dronekey.perception.keypoint_model import KeypointModel
 from dronekey.sim_replay.io.sequence_reader import load_sequence
 
@@ -127,6 +128,7 @@ def run_robustness(
         "select": None if select is None else list(select),
         "model": str(model.path),
         "model_has_heading_head": bool(model.has_heading),
+        "front_back": str(default_heading_model_path()),  # the pipeline's default classifier
         "mirror_average": bool(mirror_average),
         "match_gate": {"min_m": MATCH_GATE_M, "range_fraction": MATCH_GATE_FRACTION},
         "wrong_heading_deg": WRONG_HEADING_DEG,
