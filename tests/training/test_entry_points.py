@@ -1,4 +1,5 @@
-"""dronekey-train and dronekey-export in a runtime install (no torch): one line naming the extra."""
+"""dronekey-train, dronekey-train-heading and dronekey-export in a runtime install (no torch): one
+line naming the extra."""
 
 import subprocess
 import sys
@@ -14,7 +15,12 @@ WITHOUT_TORCH = (
 
 
 @pytest.mark.parametrize(
-    ("main", "command"), [("train_main", "dronekey-train"), ("export_main", "dronekey-export")]
+    ("main", "command"),
+    [
+        ("train_main", "dronekey-train"),
+        ("export_main", "dronekey-export"),
+        ("train_heading_main", "dronekey-train-heading"),
+    ],
 )
 def test_without_torch_one_line_and_the_extra(main, command):
     result = subprocess.run(
@@ -28,7 +34,7 @@ def test_without_torch_one_line_and_the_extra(main, command):
     )
 
 
-@pytest.mark.parametrize("main", ["train_main", "export_main"])
+@pytest.mark.parametrize("main", ["train_main", "export_main", "train_heading_main"])
 def test_with_torch_the_command_runs(main, capsys):
     from dronekey.training import entry_points
 
