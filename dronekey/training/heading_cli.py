@@ -44,7 +44,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="training sampler seeds, one process each",
     )
     p.add_argument(
-        "--shards", type=int, default=110, help=f"shards of {SHARD_SIZE} rendered crops per training seed"
+        "--shards", type=int, default=118, help=f"shards of {SHARD_SIZE} rendered crops per training seed"
     )
     p.add_argument("--val-seed", type=int, default=31099, help="validation sampler seed (never trained on)")
     p.add_argument("--val-shards", type=int, default=6, help="validation shards")
