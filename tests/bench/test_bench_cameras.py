@@ -35,7 +35,9 @@ def test_two_cameras_report_each_and_the_cpu_limit(assets):
         assert set(cam) == CAMERA_KEYS
         assert 0 < cam["frames"] <= 60 and cam["clip_fps"] == pytest.approx(30)  # 2 s at 30 fps at most
         assert cam["frames"] == 60 or cam["dropped"] > 0  # a camera behind its clip stops at 2 s
-        assert 0 < cam["fps"] <= 31 and cam["dropped"] >= 0  # paced: never faster than the clip
+        # paced: never faster than the clip, but a 2 s window is measured between two publish times,
+        # and the first one coming 50 ms late reads as 31.2 fps (seen once in about 15 runs)
+        assert 0 < cam["fps"] <= 33 and cam["dropped"] >= 0
         assert 0 < cam["latency_ms_p50"] <= cam["latency_ms_p99"]
         assert 0 < cam["pipeline_cpu_ms_per_frame"] < cam["cpu_ms_per_frame"]
     assert report["fps_total"] == pytest.approx(sum(c["fps"] for c in report["cameras"]), abs=0.02)
