@@ -1,6 +1,7 @@
 """Perception: from a frame to per-drone 6DoF measurements (no torch: ONNX Runtime only).
 
 ``keypoint_model``  the exported network: preprocess, ONNX Runtime inference, postprocess
+``onnx_session``    ONNX Runtime session options both models share
 ``heading_model``   the front/back classifier: the crop turned front-up around the keypoints, its answer
 ``localizer``       where to look: search proposals over the frame, crops per prior
 ``keypoint_order``  the keypoint <-> network order (mirror, 180-degree twin) and its fixes

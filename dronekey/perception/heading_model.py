@@ -32,6 +32,8 @@ import cv2
 import numpy as np
 import onnxruntime as ort
 
+from dronekey.perception.onnx_session import session_options
+
 __all__ = [
     "HUB_RADIUS",
     "PATCH_SIZE",
@@ -143,12 +145,10 @@ class HeadingModel:
         if not 0.0 <= min_axis_ratio < 2.0:
             raise ValueError(f"min_axis_ratio must be in [0, 2), got {min_axis_ratio}")
         self.min_axis_ratio = float(min_axis_ratio)
-        options = ort.SessionOptions()
-        options.intra_op_num_threads = int(threads)
-        options.inter_op_num_threads = 1
-        options.add_session_config_entry("session.intra_op.allow_spinning", "0")
         try:
-            self.session = ort.InferenceSession(str(self.path), options, providers=["CPUExecutionProvider"])
+            self.session = ort.InferenceSession(
+                str(self.path), session_options(int(threads)), providers=["CPUExecutionProvider"]
+            )
         except Exception as exc:  # onnxruntime's own Fail / InvalidProtobuf types
             raise ValueError(f"{self.path}: not an ONNX model onnxruntime can load ({exc})") from None
         inputs = [i.name for i in self.session.get_inputs()]

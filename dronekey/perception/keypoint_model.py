@@ -36,6 +36,7 @@ import psutil
 from dronekey.geometry.crop import ROI, crop_square, from_normalised
 from dronekey.perception.heading_model import HeadingModel
 from dronekey.perception.keypoint_order import HEADING_TWIN
+from dronekey.perception.onnx_session import session_options
 from dronekey.perception.spread_calibration import SpreadCalibration
 from dronekey.types import KeypointDetection
 
@@ -124,20 +125,6 @@ def preprocess_crops(
     rgb = crops[..., ::-1].astype(np.float32)
     tensor = rgb * scale - offset  # (B, S, S, 3)
     return np.ascontiguousarray(tensor.transpose(0, 3, 1, 2))
-
-
-def _session_options(threads: int) -> ort.SessionOptions:
-    """ONNX Runtime options for ``threads`` intra-op threads. Extra threads sleep between calls
-    instead of spinning: the pipeline runs a call every few milliseconds, and a spinning thread
-    burns the core the decoder needs (2 threads, batch 6: 10.9 CPU ms a call not spinning, 16.7
-    spinning, for 6.6 and 5.9 ms of wall time; docs/performance.md)."""
-    options = ort.SessionOptions()
-    options.intra_op_num_threads = threads
-    options.inter_op_num_threads = 1
-    options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
-    options.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
-    options.add_session_config_entry("session.intra_op.allow_spinning", "0")
-    return options
 
 
 def _metadata_json(metadata: dict[str, str], key: str, path: Path):
@@ -265,7 +252,7 @@ class KeypointModel:
             raise ValueError(f"threads must be >= 1, got {threads}")
         self.threads = threads
         try:
-            options = _session_options(threads)
+            options = session_options(threads)
             self.session = ort.InferenceSession(str(self.path), options, providers=requested)
         except Exception as exc:  # onnxruntime raises its own Fail / InvalidProtobuf / InvalidGraph types
             if type(exc).__module__.startswith("onnxruntime"):

@@ -18,7 +18,6 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
-import onnx
 import onnxruntime as ort
 import torch
 from torch.nn import functional
@@ -27,6 +26,7 @@ from tqdm import tqdm
 from dronekey import __version__
 from dronekey.nn.heading_net import Antisymmetric, HeadingNet
 from dronekey.perception.heading_model import INPUT_NAME, OUTPUT_NAME, PATCH_SIZE, patches_to_tensor
+from dronekey.training.export import write_metadata
 
 __all__ = ["HeadingRecipe", "evaluate", "export_heading_model", "train_heading"]
 
@@ -157,12 +157,8 @@ def export_heading_model(model: Antisymmetric, path: str | Path, metadata: dict 
         dynamic_shapes={"x": {0: torch.export.Dim("batch", min=1)}},
         verbose=False,
     )
-    proto = onnx.load(str(path))
     meta = {"producer": f"dronekey {__version__}", "patch_size": PATCH_SIZE, **(metadata or {})}
-    for key, value in meta.items():
-        entry = proto.metadata_props.add()
-        entry.key, entry.value = key, json.dumps(value)
-    onnx.save(proto, str(path))
+    write_metadata(path, {key: json.dumps(value) for key, value in meta.items()})
     with torch.no_grad():
         expected = model(x).numpy()
     got = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"]).run(
