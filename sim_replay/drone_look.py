@@ -78,7 +78,7 @@ class BodyShape:
         """A consumer-to-prosumer quadcopter; ``leds`` False gives a shape with no LED parts."""
         # Camera drones, the kind a counter-drone sensor meets, carry their camera at the front: it is
         # the one front cue real drones share, so most shapes have one (the rest must stay doubtful).
-        gimbal = str(rng.choice(GIMBAL_PLACES, p=[0.85, 0.1, 0.05]))
+        gimbal = str(rng.choice(GIMBAL_PLACES, p=[0.75, 0.15, 0.1]))
         return cls(
             length=float(rng.uniform(0.45, 0.8)),
             width=float(rng.uniform(0.2, 0.38)),
@@ -92,7 +92,7 @@ class BodyShape:
             rear_arm_drop=float(rng.uniform(0.2, 0.7)) if rng.random() < 0.4 else 0.0,
             guards=bool(rng.random() < 0.15),
             legs=bool(rng.random() < 0.3),
-            stripe=str(rng.choice(["front", "rear", "full", "none"], p=[0.25, 0.15, 0.15, 0.45])),
+            stripe=str(rng.choice(["front", "rear", "full", "none"], p=[0.2, 0.2, 0.15, 0.45])),
             led_place=str(rng.choice(LED_PLACES, p=[0.4, 0.35, 0.25])),
             led_front=leds and bool(rng.random() < 0.9),
             led_rear=leds and bool(rng.random() < 0.9),
