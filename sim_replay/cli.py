@@ -308,6 +308,23 @@ def _cli_message(message: str) -> str:
     )
 
 
+def _scene_options(args: argparse.Namespace, width: int, height: int) -> dict:
+    """The keywords ``build_sequence`` and ``build_scene`` share, from the command line."""
+    return {
+        "preset": args.preset,
+        "seed": args.seed,
+        "frames": args.frames,
+        "width": width,
+        "height": height,
+        "backgrounds": args.backgrounds,
+        "style_seed": args.style_seed,
+        "leds": args.leds,
+        "flight": args.flight,
+        "background": args.background,
+        "range_scale": args.range_scale,
+    }
+
+
 def _render(args: argparse.Namespace) -> int:
     if args.preset not in PRESETS:
         raise UsageError(f"unknown preset {args.preset!r}; valid presets: {', '.join(PRESETS)}")
@@ -318,20 +335,7 @@ def _render(args: argparse.Namespace) -> int:
     if PRESETS[args.preset].multi_drone or args.cameras > 1 or args.drones is not None:
         return _render_scene(args, width, height, codec)
     try:
-        seq = build_sequence(
-            args.preset,
-            seed=args.seed,
-            frames=args.frames,
-            width=width,
-            height=height,
-            backgrounds=args.backgrounds,
-            style_seed=args.style_seed,
-            leds=args.leds,
-            no_drone=args.no_drone,
-            flight=args.flight,
-            background=args.background,
-            range_scale=args.range_scale,
-        )
+        seq = build_sequence(**_scene_options(args, width, height), no_drone=args.no_drone)
     except (ValueError, OSError, ImportError) as exc:  # build_sequence's own checks (sizes, frames, folders)
         raise UsageError(_cli_message(str(exc))) from None
     _check_output_folder(args.out)
@@ -374,21 +378,7 @@ def _render_scene(args: argparse.Namespace, width: int, height: int, codec: str)
             "--no-drone renders one camera of a single-drone preset; not with --cameras or swarm"
         )
     try:
-        scene = build_scene(
-            args.preset,
-            seed=args.seed,
-            frames=args.frames,
-            width=width,
-            height=height,
-            backgrounds=args.backgrounds,
-            style_seed=args.style_seed,
-            leds=args.leds,
-            flight=args.flight,
-            background=args.background,
-            range_scale=args.range_scale,
-            drones=args.drones,
-            cameras=args.cameras,
-        )
+        scene = build_scene(**_scene_options(args, width, height), drones=args.drones, cameras=args.cameras)
     except (ValueError, OSError, ImportError) as exc:
         message = str(exc).replace("drones must", "--drones must").replace("cameras must", "--cameras must")
         message = message.replace("drones applies", "--drones applies")

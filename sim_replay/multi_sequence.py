@@ -26,7 +26,7 @@ from dronekey.sim_replay.effects import sensor_noise
 from dronekey.sim_replay.mesh import PROP, DroneMesh, build_mesh, segment_hits
 from dronekey.sim_replay.presets import Preset
 from dronekey.sim_replay.renderer import Lighting, render_drone
-from dronekey.sim_replay.synthetic_sequence import GENERATOR, RenderedFrame, SequenceConditions
+from dronekey.sim_replay.synthetic_sequence import RenderedFrame, SequenceConditions, sequence_info
 
 __all__ = ["MultiDroneSequence", "SceneDrone", "ViewPose"]
 
@@ -122,21 +122,8 @@ class MultiDroneSequence:
     @property
     def info(self) -> dict:
         """The JSON's ``info`` (docs/design.md §5.1): the conditions, the camera and every drone."""
-        c = self.conditions
         return {
-            "sequence": self.name,
-            "generator": GENERATOR,
-            "seed": self.seed,
-            "fps": self.fps,
-            "description": self.preset.description,
-            "style_seed": c.style_seed,
-            "leds": c.leds,
-            "leds_lit": bool(self.drones[0].look.leds_lit),
-            "led_blink_hz": self.drones[0].look.blink_hz,
-            "no_drone": False,
-            "flight": c.flight,
-            "background": c.background,
-            "range_scale": float(c.range_scale),
+            **sequence_info(self.name, self.seed, self.preset, self.conditions, self.drones[0].look),
             "camera_id": self.view.camera_id,
             "drones": [
                 {

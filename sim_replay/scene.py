@@ -36,6 +36,7 @@ from dronekey.sim_replay.swarm import DronePlan, swarm_plans
 from dronekey.sim_replay.synthetic_sequence import (
     SequenceConditions,
     background_source,
+    check_render_size,
     style_seed_for,
 )
 
@@ -194,10 +195,7 @@ def build_scene(
     if not 1 <= int(cameras) <= MAX_CAMERAS:
         raise ValueError(f"cameras must be 1-{MAX_CAMERAS}, got {cameras}")
     frames = p.frames if frames is None else int(frames)
-    if frames <= 0:
-        raise ValueError(f"frames must be positive, got {frames}")
-    if width <= 0 or height <= 0:
-        raise ValueError(f"width and height must be positive, got {width}x{height}")
+    check_render_size(frames, width, height)
     seed = p.default_seed if seed is None else int(seed)
     conditions = SequenceConditions(
         style_seed=style_seed_for(seed) if style_seed is None else style_seed,

@@ -51,6 +51,8 @@ __all__ = [
     "SyntheticSequence",
     "background_source",
     "build_sequence",
+    "check_render_size",
+    "sequence_info",
     "style_seed_for",
 ]
 
@@ -105,6 +107,38 @@ class SequenceConditions:
         scale = self.range_scale
         if isinstance(scale, bool) or not isinstance(scale, int | float) or not (0 < scale < math.inf):
             raise ValueError(f"range_scale must be a positive number, got {scale!r}")
+
+
+def sequence_info(
+    name: str, seed: int, preset: Preset, conditions: SequenceConditions, look: DroneLook | None
+) -> dict:
+    """The fields every sequence JSON's ``info`` (docs/design.md §5.1) starts with: the sequence, the
+    preset and the conditions it was rendered under; ``look`` is the (first) drone's, None without
+    a drone."""
+    c = conditions
+    return {
+        "sequence": name,
+        "generator": GENERATOR,
+        "seed": seed,
+        "fps": preset.fps,
+        "description": preset.description,
+        "style_seed": c.style_seed,
+        "leds": c.leds,
+        "leds_lit": False if look is None else bool(look.leds_lit),
+        "led_blink_hz": None if look is None else look.blink_hz,
+        "no_drone": c.no_drone,
+        "flight": c.flight,
+        "background": c.background,
+        "range_scale": float(c.range_scale),
+    }
+
+
+def check_render_size(frames: int, width: int, height: int) -> None:
+    """Raise ``ValueError`` naming the argument when the frame count or the image size is not positive."""
+    if frames <= 0:
+        raise ValueError(f"frames must be positive, got {frames}")
+    if width <= 0 or height <= 0:
+        raise ValueError(f"width and height must be positive, got {width}x{height}")
 
 
 @dataclass(frozen=True)
@@ -166,22 +200,8 @@ class SyntheticSequence:
     @property
     def info(self) -> dict:
         """The JSON's ``info`` object (docs/design.md §5.1) with the conditions it was rendered under."""
-        c = self.conditions
-        return {
-            "sequence": self.name,
-            "generator": GENERATOR,
-            "seed": self.seed,
-            "fps": self.fps,
-            "description": self.preset.description,
-            "style_seed": c.style_seed,
-            "leds": c.leds,
-            "leds_lit": False if c.no_drone else bool(self.look.leds_lit),
-            "led_blink_hz": None if c.no_drone else self.look.blink_hz,
-            "no_drone": c.no_drone,
-            "flight": c.flight,
-            "background": c.background,
-            "range_scale": float(c.range_scale),
-        }
+        look = None if self.conditions.no_drone else self.look
+        return sequence_info(self.name, self.seed, self.preset, self.conditions, look)
 
     def __len__(self) -> int:
         return self.n_frames
@@ -350,10 +370,7 @@ def build_sequence(
             "(dronekey-sim does)"
         )
     frames = p.frames if frames is None else int(frames)
-    if frames <= 0:
-        raise ValueError(f"frames must be positive, got {frames}")
-    if width <= 0 or height <= 0:
-        raise ValueError(f"width and height must be positive, got {width}x{height}")
+    check_render_size(frames, width, height)
     seed = p.default_seed if seed is None else int(seed)
     conditions = SequenceConditions(
         style_seed=style_seed_for(seed) if style_seed is None else style_seed,
