@@ -79,7 +79,12 @@ def default_pipeline_factory(camera: CameraModel, config: DaemonConfig) -> Pipel
         threads=m.threads,
         mirror_average=m.mirror_average,
         heading_model=(m.front_back_path or True) if m.front_back else False,
-        tracker=TrackerConfig(max_tracks=t.max_tracks, confirm_min_change=t.confirm_min_change),
+        verifier=(m.verifier_path or True) if m.verifier else False,
+        tracker=TrackerConfig(
+            max_tracks=t.max_tracks,
+            confirm_min_change=t.confirm_min_change,
+            confirm_drone_p=t.confirm_drone_p,
+        ),
         search_every=t.search_every,
         search_more_every=t.search_more_every,
         max_search_candidates=t.max_search_candidates,

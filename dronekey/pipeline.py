@@ -32,6 +32,7 @@ from dronekey.checks import int_at_least
 from dronekey.geometry.camera import CalibrationError, CameraModel
 from dronekey.geometry.crop import CropPolicy
 from dronekey.geometry.drone_spec import DroneSpec, load_spec
+from dronekey.perception.drone_verifier import load_verifier
 from dronekey.perception.frame_change import frame_change
 from dronekey.perception.heading_model import load_heading_model
 from dronekey.perception.keypoint_model import HEADING_TWIN, KeypointModel
@@ -208,6 +209,7 @@ class PoseTracker:
             [m.detection.keypoints_px for m in measured],
             [m.detection.heading_p for m in measured],
             [m.change for m in measured],
+            [m.detection.drone_p for m in measured],
         )
 
 
@@ -227,6 +229,9 @@ class TrackingPipeline:
     heading_model : the front/back classifier (``dronekey.perception.heading_model``): True the
         shipped one, a path another, False none (the keypoint network's own head decides, which
         answers 0.5 on every crop with the shipped network).
+    verifier : the drone verifier (``dronekey.perception.drone_verifier``): True the shipped one
+        (none when the package ships none), a path another, False none; its verdict is
+        confirmation evidence (``TrackerConfig.confirm_drone_p``).
     localizer, tracker, plausibility : configs (defaults suit a small drone at 30 fps).
     keypoint_sigma_px, max_reprojection_frac : see ``PoseTracker``.
     search_every : frames between whole-frame searches while a confirmed track is measured (the
@@ -254,6 +259,7 @@ class TrackingPipeline:
         threads: int | None = None,
         mirror_average: bool = True,
         heading_model: bool | str | Path = True,
+        verifier: bool | str | Path = True,
         localizer: LocalizerConfig | None = None,
         tracker: TrackerConfig | None = None,
         keypoint_sigma_px: float = 1.5,
@@ -274,6 +280,7 @@ class TrackingPipeline:
             threads=threads,
             mirror_average=mirror_average,
             heading_model=load_heading_model(heading_model),
+            verifier=load_verifier(verifier),
         )
         crop = CropPolicy(
             **{**self.model.metadata.get("crop_policy", {}), "input_size": self.model.input_size}
@@ -296,6 +303,7 @@ class TrackingPipeline:
                 "input_size": self.model.input_size,
                 "trained_on": self.model.metadata.get("trained_on"),
                 "front_back": str(heading.path) if (heading := self.model.heading_model) else None,
+                "verifier": str(verifier.path) if (verifier := self.model.verifier) else None,
             },
             "drone": self.spec.to_dict(),
         }

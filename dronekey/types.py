@@ -50,6 +50,8 @@ class KeypointDetection:
     spread_scale : the factor by which the model's spread calibration scaled the keypoints about
         their centroid (``dronekey.perception.spread_calibration``; 1: none), so the network's own
         spread is the keypoints' over ``spread_scale``.
+    drone_p : probability in [0, 1] the drone verifier gives to the crop holding a drone
+        (``dronekey.perception.drone_verifier``); NaN without a verifier.
     """
 
     keypoints_px: np.ndarray
@@ -57,6 +59,7 @@ class KeypointDetection:
     roi: tuple[int, int, int]
     heading_p: float = float("nan")
     spread_scale: float = 1.0
+    drone_p: float = float("nan")
 
     @property
     def heading_confidence(self) -> float:

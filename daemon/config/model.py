@@ -36,6 +36,15 @@ class ModelConfig(Section):
     front_back_path: FilePath | None = Field(
         None, description="ONNX front/back classifier; null: the one shipped with the package"
     )
+    verifier: bool = Field(
+        True,
+        description="confirm a track only when the drone verifier (dronekey.perception.drone_verifier) "
+        "calls its hits a drone (tracker.confirm_drone_p); no effect when the package ships no verifier "
+        "and verifier_path is null",
+    )
+    verifier_path: FilePath | None = Field(
+        None, description="ONNX drone verifier; null: the one shipped with the package, if any"
+    )
 
     @field_validator("drone")
     @classmethod

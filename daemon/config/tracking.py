@@ -34,3 +34,10 @@ class TrackingConfig(Section):
         description="grey levels a detection's propellers must change above their surroundings, frame to "
         "frame, to confirm a track (0: off, e.g. to report drones hovering with stopped propellers)",
     )
+    confirm_drone_p: float = Field(
+        0.5,
+        ge=0,
+        le=1,
+        description="mean drone probability the drone verifier must give a track's confirming hits "
+        "(0: off; no effect without a verifier, see model.verifier)",
+    )

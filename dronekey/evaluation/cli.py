@@ -203,6 +203,9 @@ def _cmd_robustness(args: argparse.Namespace) -> int:
         raise _UsageError(f"--out must be a folder, got the file {out}")
     if args.model is not None and not Path(args.model).is_file():
         raise _UsageError(f"--model not found: {args.model}")
+    for flag, value in (("--front-back", args.front_back), ("--verifier", args.verifier)):
+        if value is not None and not Path(value).is_file():
+            raise _UsageError(f"{flag} not found: {value}")
     try:
         report = run_robustness(
             out,
@@ -217,6 +220,8 @@ def _cmd_robustness(args: argparse.Namespace) -> int:
             width=width,
             height=height,
             mirror_average=not args.no_mirror_average,
+            front_back=args.front_back or True,
+            verifier=False if args.no_verifier else (args.verifier or True),
             progress=sys.stderr.isatty(),
             select=args.select,
         )
@@ -356,6 +361,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     r.add_argument("--tuning", action="store_true", help="use (or name with --seeds) the tuning seed set")
     r.add_argument("--model", default=None, help="ONNX model (default: the shipped one)")
+    r.add_argument("--front-back", default=None, help="ONNX front/back classifier (default: the shipped one)")
+    r.add_argument("--verifier", default=None, help="ONNX drone verifier (default: the shipped one, if any)")
+    r.add_argument("--no-verifier", action="store_true", help="run without a drone verifier")
     r.add_argument("--quick", action="store_true", help="reduced matrix for a smoke test (see above)")
     r.add_argument(
         "--drone-free",

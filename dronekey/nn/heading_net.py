@@ -1,11 +1,15 @@
-"""The front/back classifier in torch (training and export; the runtime runs its ONNX export through
-``dronekey.perception.heading_model``).
+"""The patch classifiers in torch (training and export; the runtime runs their ONNX exports through
+``dronekey.perception.heading_model`` and ``dronekey.perception.drone_verifier``).
 
 Input: a 64 px BGR patch turned front-up around the keypoints (``canonical_patches``), normalised
-by ``patches_to_tensor``. Output: the logit that the nose is at the top. A small CNN whose head
-keeps where its features are (flatten, not global pooling: "top" against "bottom" is the answer),
-wrapped in ``Antisymmetric`` so that the patch turned 180 degrees (the twin order) gets exactly
-the opposite logit.
+by ``patches_to_tensor``. ``HeadingNet`` is a small CNN whose head keeps where its features are
+(flatten, not global pooling: "top" against "bottom" is the front/back answer). Two wrappers fix
+how the answer may depend on the keypoints' order:
+
+- ``Antisymmetric`` (front/back): the patch turned 180 degrees (the twin order) gets exactly the
+  opposite logit;
+- ``Symmetric`` (drone or not): the patch and its 180-degree turn get the same logit, so the
+  verdict does not depend on which order the keypoints came in.
 """
 
 from __future__ import annotations
@@ -13,7 +17,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-__all__ = ["Antisymmetric", "HeadingNet"]
+__all__ = ["Antisymmetric", "HeadingNet", "Symmetric"]
 
 
 class HeadingNet(nn.Module):
@@ -51,9 +55,10 @@ class HeadingNet(nn.Module):
         return self.head(self.features(x)).squeeze(1)
 
 
-class Antisymmetric(nn.Module):
-    """``logit(x) = (f(x) - f(rot180(x))) / 2``: the twin order gets exactly ``-logit``, so the
-    exported probabilities of an order and its twin always sum to 1."""
+class _HalfTurnPaired(nn.Module):
+    """``logit(x) = (f(x) + sign * f(rot180(x))) / 2`` for a one-logit ``f``."""
+
+    sign = 1.0
 
     def __init__(self, f: nn.Module) -> None:
         super().__init__()
@@ -62,7 +67,20 @@ class Antisymmetric(nn.Module):
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         both = self.f(torch.cat([x, torch.flip(x, dims=(2, 3))]))
         n = x.shape[0]
-        return 0.5 * (both[:n] - both[n:])
+        return 0.5 * (both[:n] + self.sign * both[n:])
+
+
+class Antisymmetric(_HalfTurnPaired):
+    """``logit(x) = (f(x) - f(rot180(x))) / 2``: the twin order gets exactly ``-logit``, so the
+    exported probabilities of an order and its twin always sum to 1."""
+
+    sign = -1.0
+
+
+class Symmetric(_HalfTurnPaired):
+    """``logit(x) = (f(x) + f(rot180(x))) / 2``: an order and its twin get the same logit."""
+
+    sign = 1.0
 
 
 def _block(cin: int, cout: int, stride: int = 1) -> nn.Sequential:

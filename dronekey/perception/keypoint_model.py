@@ -11,7 +11,9 @@ swaps the keypoints to the twin order) and hands the pipeline the probability of
 returns (``KeypointDetection.heading_p`` in [0.5, 1]), so that the tracker can weigh it. A model
 without the output gives NaN: the order is the network's, its doubt unknown.
 With a ``HeadingModel`` (the shipped front/back classifier, which reads the nose from a patch turned
-front-up around the keypoints) its probability replaces the head's before that decision.
+front-up around the keypoints) its probability replaces the head's before that decision. With a
+``DroneVerifier`` (the second look at whether the patch is a drone at all) each detection also
+carries its probability (``KeypointDetection.drone_p``); the same patch feeds both.
 
 The input size and normalisation are read from the model's metadata (written by
 ``dronekey.training.export``), so a model carries its own contract. torch is never imported here: the
@@ -34,9 +36,11 @@ import onnxruntime as ort
 import psutil
 
 from dronekey.geometry.crop import ROI, crop_square, from_normalised
+from dronekey.perception.drone_verifier import DroneVerifier
 from dronekey.perception.heading_model import HeadingModel
 from dronekey.perception.keypoint_order import HEADING_TWIN
 from dronekey.perception.onnx_session import session_options
+from dronekey.perception.patch_classifier import canonical_patches, patches_to_tensor
 from dronekey.perception.spread_calibration import SpreadCalibration
 from dronekey.types import KeypointDetection
 
@@ -65,8 +69,9 @@ HEADING_OUTPUT = "heading"  # optional fourth output: sigmoid of the front/back 
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
 SHIPPED_MODEL = "dronekey_edge.onnx"
-# The front/back classifier runs only on crops at least this likely to hold a drone (the localiser's
-# presence threshold, 0.5 by default, is above it), which keeps it off most of the search's crops.
+# The patch classifiers (front/back, verifier) run only on crops at least this likely to hold a drone
+# (the localiser's presence threshold, 0.5 by default, is above it), which keeps them off most of
+# the search's crops.
 HEADING_MIN_PRESENCE = 0.3
 
 
@@ -207,6 +212,9 @@ class KeypointModel:
     heading_model : HeadingModel, optional
         The front/back classifier (``dronekey.perception.heading_model``): when given, its
         probability decides each crop's keypoint order in place of the network's own head.
+    verifier : DroneVerifier, optional
+        The drone verifier (``dronekey.perception.drone_verifier``): when given, each detection
+        carries its probability that the crop is a drone (``drone_p``; NaN without one).
 
     Attributes
     ----------
@@ -227,9 +235,18 @@ class KeypointModel:
         mirror_average: bool = False,
         spread_calibration: SpreadCalibration | None = None,
         heading_model: HeadingModel | None = None,
+        verifier: DroneVerifier | None = None,
     ) -> None:
         self.mirror_average = bool(mirror_average)
         self.heading_model = heading_model
+        self.verifier = verifier
+        sizes = {c.patch_size for c in (heading_model, verifier) if c is not None}
+        if len(sizes) > 1:
+            raise ValueError(
+                f"heading_model and verifier read patches of different sizes ({sorted(sizes)} px): "
+                "train them with the same patch size"
+            )
+        self._patch_size = sizes.pop() if sizes else 0
         self.path = Path(path) if path is not None else default_model_path()
         if not self.path.is_file():
             hint = (
@@ -330,20 +347,28 @@ class KeypointModel:
         outputs = self.session.run(self._outputs, {INPUT_NAME: tensor})
         return RawOutputs(*outputs) if self.has_heading else RawOutputs(*outputs, None)
 
-    def postprocess(self, raw: RawOutputs, rois: Sequence[ROI]) -> list[KeypointDetection]:
+    def postprocess(
+        self, raw: RawOutputs, rois: Sequence[ROI], drone_p: np.ndarray | None = None
+    ) -> list[KeypointDetection]:
         """Map each crop's keypoints back to full-frame pixels through its ``roi`` (x0, y0, side), in
         the front/back head's order (``in_heading_order``), their spread calibrated
-        (``spread_calibration``)."""
+        (``spread_calibration``); ``drone_p`` (B,) is the verifier's probability per crop (NaN
+        without a verifier)."""
         if len(rois) != raw.keypoints.shape[0]:
             raise ValueError(f"rois must hold one roi per crop ({raw.keypoints.shape[0]}), got {len(rois)}")
         raw = in_heading_order(raw)
         keypoints, scales = self.spread_calibration.apply(raw.keypoints)
         heading = raw.heading if raw.heading is not None else np.full(len(rois), np.nan)
+        drone_p = drone_p if drone_p is not None else np.full(len(rois), np.nan)
         detections = []
-        for kp_n, presence, p, scale, roi in zip(keypoints, raw.presence, heading, scales, rois, strict=True):
+        for kp_n, presence, p, scale, roi, verified in zip(
+            keypoints, raw.presence, heading, scales, rois, drone_p, strict=True
+        ):
             roi = tuple(int(v) for v in roi)
             kp = from_normalised(kp_n, roi)
-            detections.append(KeypointDetection(kp, float(presence), roi, float(p), float(scale)))
+            detections.append(
+                KeypointDetection(kp, float(presence), roi, float(p), float(scale), float(verified))
+            )
         return detections
 
     def detect(self, frame_bgr: np.ndarray, rois: Sequence[ROI]) -> list[KeypointDetection]:
@@ -356,17 +381,32 @@ class KeypointModel:
         else:
             tensor = self.preprocess(crops)  # the mirrors are flipped after normalising: half the work
             raw = mirror_averaged(self.inference(np.concatenate([tensor, tensor[..., ::-1]])), len(rois))
-        if self.heading_model is not None:  # the front/back classifier decides the order, not the head
-            raw = raw._replace(heading=self._classify_heading(crops, raw))
-        return self.postprocess(raw, rois)
+        drone_p = None
+        if self.heading_model is not None or self.verifier is not None:
+            raw, drone_p = self._read_patches(crops, raw)
+        return self.postprocess(raw, rois, drone_p)
 
     __call__ = detect
 
-    def _classify_heading(self, crops: np.ndarray, raw: RawOutputs) -> np.ndarray:
-        """The front/back classifier's probabilities; crops the network finds empty (presence below
-        ``HEADING_MIN_PRESENCE``, which no later stage keeps) get 0.5 without running it."""
-        heading = np.full(len(crops), 0.5, dtype=np.float32)
+    def _read_patches(self, crops: np.ndarray, raw: RawOutputs) -> tuple[RawOutputs, np.ndarray | None]:
+        """The patch classifiers on the crops the network finds a drone in (presence at least
+        ``HEADING_MIN_PRESENCE``; the others, which no later stage keeps, get heading 0.5 and
+        ``drone_p`` 0 without running them): the front/back classifier's probability replaces the
+        network's head (``raw.heading``), the verifier's is returned (None without a verifier).
+        The front-up patch is built once for both."""
         keep = np.flatnonzero(raw.presence >= HEADING_MIN_PRESENCE)
+        tensor = ratios = None
         if len(keep):
-            heading[keep] = self.heading_model(crops[keep], raw.keypoints[keep])
-        return heading
+            patches, ratios = canonical_patches(crops[keep], raw.keypoints[keep], self._patch_size)
+            tensor = patches_to_tensor(patches)
+        if self.heading_model is not None:  # the front/back classifier decides the order, not the head
+            heading = np.full(len(crops), 0.5, dtype=np.float32)
+            if tensor is not None:
+                heading[keep] = self.heading_model.postprocess(self.heading_model.inference(tensor), ratios)
+            raw = raw._replace(heading=heading)
+        drone_p = None
+        if self.verifier is not None:
+            drone_p = np.zeros(len(crops), dtype=np.float32)
+            if tensor is not None:
+                drone_p[keep] = self.verifier.postprocess(self.verifier.inference(tensor))
+        return raw, drone_p

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from typing import NamedTuple
 
 import numpy as np
 
@@ -21,9 +22,24 @@ from dronekey.tracking.position_filter import ConstantVelocityFilter
 from dronekey.tracking.tracker_config import TrackerConfig
 from dronekey.types import PoseMeasurement, Track, TrackStatus
 
-__all__ = ["NS_PER_S", "TrackRecord"]
+__all__ = ["NS_PER_S", "HitEvidence", "TrackRecord"]
 
 NS_PER_S = 1_000_000_000
+
+
+class HitEvidence(NamedTuple):
+    """What one hit says about its track being a drone: the confirmation rule's inputs.
+
+    range_m : the measurement's distance from the camera, m (set when the hit is applied).
+    presence : the keypoint network's presence score (NaN when unknown).
+    change : how much its pixels changed since the previous frame, grey levels (NaN when unknown).
+    drone_p : the drone verifier's probability (NaN without a verifier).
+    """
+
+    range_m: float
+    presence: float
+    change: float
+    drone_p: float
 
 
 class TrackRecord:
@@ -34,10 +50,9 @@ class TrackRecord:
         track_id: int,
         t_ns: int,
         measurement: PoseMeasurement,
-        score: float,
+        hit: HitEvidence,
         keypoints_px: np.ndarray | None,
         config: TrackerConfig,
-        change: float = float("nan"),
     ) -> None:
         cov = measurement.covariance
         self.track_id = track_id
@@ -61,14 +76,13 @@ class TrackRecord:
             config.initial_angular_velocity_std_radps,
             config.angular_accel_std_radps2,
         )
-        self.score = score
+        self.score = hit.presence
         self.keypoints_px = keypoints_px
         self.reprojection_px = float(measurement.reprojection_px)
         self.keypoint_motion = KeypointMotion()  # where its keypoints are expected (association)
         self.keypoint_motion.observe(t_ns, keypoints_px)
-        # (range m, presence score, frame change in grey levels) of its latest hits
-        self.evidence: deque[tuple[float, float, float]] = deque(maxlen=config.confirm_window)
-        self.evidence.append((float(np.linalg.norm(measurement.t)), score, change))
+        self.evidence: deque[HitEvidence] = deque(maxlen=config.confirm_window)  # its latest hits
+        self.evidence.append(hit._replace(range_m=float(np.linalg.norm(measurement.t))))
         self.heading_log_odds: float | None = None  # None: no front/back evidence yet (NaN inputs)
         self.heading_cap = config.heading_confidence_cap
 

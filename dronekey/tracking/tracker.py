@@ -28,7 +28,8 @@ first ``confirm_window`` frames whose evidence agrees: their ranges within a fac
 ``1 + confirm_range_spread`` of each other (a real drone cannot halve its distance in a sixth of a
 second), their mean presence at least ``confirm_presence``, and every one of them a change of
 the pixels since the previous frame (``confirm_min_change``: a drone in flight moves and spins
-its propellers, clutter in front of a fixed camera does not); otherwise it is dropped. Every
+its propellers, clutter in front of a fixed camera does not), and, with a drone verifier, their
+mean drone probability at least ``confirm_drone_p``; otherwise it is dropped. Every
 measurement has passed the pipeline's plausibility gate (``dronekey.perception.plausibility``) before it gets
 here, and a frame may bring several: each unmatched one starts its own tentative hypothesis, so a
 false candidate cannot block the true one, and only the hypotheses whose evidence holds confirm.
@@ -51,7 +52,7 @@ from scipy.optimize import linear_sum_assignment
 from dronekey.tracking.heading import update_heading
 from dronekey.tracking.keypoint_overlap import box_iou, keypoint_box
 from dronekey.tracking.orientation_update import update_orientation
-from dronekey.tracking.track_record import NS_PER_S, TrackRecord
+from dronekey.tracking.track_record import NS_PER_S, HitEvidence, TrackRecord
 from dronekey.tracking.tracker_config import TrackerConfig
 from dronekey.types import PoseMeasurement, Track, TrackStatus
 
@@ -126,6 +127,7 @@ class Tracker:
         keypoints_px: Sequence[np.ndarray | None] | None = None,
         heading_p: Sequence[float] | None = None,
         changes: Sequence[float] | None = None,
+        drone_p: Sequence[float] | None = None,
     ) -> list[Track]:
         """Advance every track to ``t_ns`` and fold in this frame's measurements.
 
@@ -146,6 +148,10 @@ class Tracker:
             How much each measurement's pixels changed since the previous frame
             (``dronekey.perception.frame_change``, grey levels): confirmation evidence; NaN or
             absent when unknown (no previous frame, no images).
+        drone_p : sequence of float, optional
+            The drone verifier's probability that each measurement is a drone
+            (``dronekey.perception.drone_verifier``): confirmation evidence; NaN or absent without
+            a verifier.
 
         Returns
         -------
@@ -171,6 +177,8 @@ class Tracker:
             float(p) for p in _per_measurement("heading_p", heading_p, len(measurements), float("nan"))
         ]
         changes = [float(c) for c in _per_measurement("changes", changes, len(measurements), float("nan"))]
+        drone_p = [float(v) for v in _per_measurement("drone_p", drone_p, len(measurements), float("nan"))]
+        hits = [HitEvidence(math.nan, *e) for e in zip(scores, changes, drone_p, strict=True)]
         t_ns = self._check_time(t_ns)
 
         for track in self._tracks.values():
@@ -178,11 +186,9 @@ class Tracker:
         pairs, unmatched = self._associate(t_ns, measurements, keypoints_px)
         for track_id, j in pairs:
             track = self._tracks[track_id]
-            self._apply(track, measurements[j], scores[j], keypoints_px[j], heading_p[j], changes[j])
+            self._apply(track, measurements[j], hits[j], keypoints_px[j], heading_p[j])
         matched = dict(pairs)  # track id -> its measurement's index
-        dropped = self._merge_duplicates(
-            t_ns, matched, measurements, scores, keypoints_px, heading_p, changes
-        )
+        dropped = self._merge_duplicates(t_ns, matched, measurements, hits, keypoints_px, heading_p)
 
         reports: list[Track] = [track.to_track(TrackStatus.LOST) for track in dropped]
         for track in list(self._tracks.values()):
@@ -199,9 +205,7 @@ class Tracker:
             if len(self._tracks) >= self.config.max_tracks:
                 log.debug("measurement ignored: max_tracks=%d live tracks", self.config.max_tracks)
                 continue
-            track = TrackRecord(
-                self._next_id, t_ns, measurements[j], scores[j], keypoints_px[j], self.config, changes[j]
-            )
+            track = TrackRecord(self._next_id, t_ns, measurements[j], hits[j], keypoints_px[j], self.config)
             track.add_heading_evidence(heading_p[j], 1.0)  # a new track starts from the network's word
             self._tracks[track.track_id] = track
             self._next_id += 1
@@ -291,7 +295,7 @@ class Tracker:
         return pairs, [j for j in range(len(measurements)) if j not in used]
 
     def _merge_duplicates(
-        self, t_ns: int, matched: dict[int, int], measurements, scores, keypoints_px, heading_p, changes
+        self, t_ns: int, matched: dict[int, int], measurements, hits, keypoints_px, heading_p
     ) -> list[TrackRecord]:
         """Drop each duplicate (``_duplicates``) of a measured track; the older of the two (more
         hits) keeps its id and history, and takes this frame's measurement if it was the other's.
@@ -305,7 +309,7 @@ class Tracker:
                 keep, drop = drop, keep
             else:  # the older track takes the reading
                 j = matched.pop(measured_id)
-                self._apply(keep, measurements[j], scores[j], keypoints_px[j], heading_p[j], changes[j])
+                self._apply(keep, measurements[j], hits[j], keypoints_px[j], heading_p[j])
                 matched[keep.track_id] = j
             log.debug("track %d dropped: it follows track %d's drone", drop.track_id, keep.track_id)
             matched.pop(drop.track_id, None)
@@ -343,16 +347,16 @@ class Tracker:
         self,
         track: TrackRecord,
         m: PoseMeasurement,
-        score: float,
+        hit: HitEvidence,
         keypoints_px: np.ndarray | None,
         heading_p: float = float("nan"),
-        change: float = float("nan"),
     ) -> None:
         cfg = self.config
         track.position.update(m.t, m.covariance[:3, :3])
         m, heading_p = update_heading(track, m, heading_p, cfg)
         update_orientation(track, m, cfg)
-        track.evidence.append((float(np.linalg.norm(m.t)), score, change))
+        track.evidence.append(hit._replace(range_m=float(np.linalg.norm(m.t))))
+        change, score = hit.change, hit.presence
         if math.isfinite(change):
             track.still_hits = track.still_hits + 1 if change < cfg.confirm_min_change else 0
         track.hits += 1
@@ -372,11 +376,13 @@ class Tracker:
             track.status = TrackStatus.CONFIRMED
 
     def _evidence_agrees(self, track: TrackRecord) -> bool:
-        """The confirmation rule's consistency: ranges within a factor, presence high enough."""
+        """The confirmation rule's consistency: ranges within a factor, presence high enough, the
+        pixels changing, the verifier (where there is one) calling it a drone."""
         cfg = self.config
-        ranges = [r for r, _, _ in track.evidence]
-        scores = [sc for _, sc, _ in track.evidence if math.isfinite(sc)]
-        changes = [c for _, _, c in track.evidence if math.isfinite(c)]
+        ranges = [e.range_m for e in track.evidence]
+        scores = [e.presence for e in track.evidence if math.isfinite(e.presence)]
+        changes = [e.change for e in track.evidence if math.isfinite(e.change)]
+        verdicts = [e.drone_p for e in track.evidence if math.isfinite(e.drone_p)]
         if max(ranges) > (1.0 + cfg.confirm_range_spread) * min(ranges):
             log.debug(
                 "track %d: ranges %.1f-%.1f m disagree; not confirmed",
@@ -394,6 +400,13 @@ class Tracker:
         if changes and min(changes) < cfg.confirm_min_change:
             log.debug(
                 "track %d: a hit changed %.1f grey levels only; not confirmed", track.track_id, min(changes)
+            )
+            return False
+        if verdicts and float(np.mean(verdicts)) < cfg.confirm_drone_p:
+            log.debug(
+                "track %d: the verifier's mean drone probability %.2f too low; not confirmed",
+                track.track_id,
+                np.mean(verdicts),
             )
             return False
         return True

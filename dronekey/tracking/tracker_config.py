@@ -9,7 +9,9 @@ import numpy as np
 
 __all__ = ["TrackerConfig"]
 
-_MAY_BE_ZERO = frozenset({"confirm_min_change", "heading_from_motion", "keypoint_overlap_weight"})
+_MAY_BE_ZERO = frozenset(
+    {"confirm_min_change", "confirm_drone_p", "heading_from_motion", "keypoint_overlap_weight"}
+)
 
 
 @dataclass(frozen=True)
@@ -63,6 +65,9 @@ class TrackerConfig:
         of the clutter detections less (a wire over a tiled roof had been confirmed at 6.4 m and
         held for 120 frames, presence 1.0). 0 turns the check off (a deployment that must report a
         drone hovering with its propellers stopped).
+    confirm_drone_p : with a drone verifier (``dronekey.perception.drone_verifier``), the mean of
+        its drone probabilities over those hits at least this; hits without a verdict (NaN) are
+        not counted. 0 turns the check off.
     max_still_hits : a track whose last this many hits all changed less than
         ``confirm_min_change`` is lost: it is clutter that a moving thing (a wire, a bird) passed
         while it was confirmed. One drone detection in 400 changed less on the tuning seeds; 10 in
@@ -112,6 +117,7 @@ class TrackerConfig:
     confirm_presence: float = 0.6
     confirm_min_presence: float = 0.98
     confirm_min_change: float = 4.0
+    confirm_drone_p: float = 0.5
     max_still_hits: int = 10
     merge_min_iou: float = 0.5
     merge_range_ratio: float = 0.1
@@ -136,6 +142,8 @@ class TrackerConfig:
             ):
                 kind = "non-negative" if f.name in _MAY_BE_ZERO else "positive"
                 raise ValueError(f"TrackerConfig.{f.name} must be a {kind} finite number, got {value!r}")
+        if self.confirm_drone_p > 1.0:
+            raise ValueError(f"TrackerConfig.confirm_drone_p must be in [0, 1], got {self.confirm_drone_p!r}")
         if self.merge_min_iou > 1.0:
             raise ValueError(f"TrackerConfig.merge_min_iou must be in (0, 1], got {self.merge_min_iou!r}")
         if self.confirm_window < self.confirm_hits:

@@ -1,4 +1,5 @@
-"""Console entry points of ``dronekey-train``, ``dronekey-train-heading`` and ``dronekey-export``.
+"""Console entry points of ``dronekey-train``, ``dronekey-train-heading``, ``dronekey-train-verifier``
+and ``dronekey-export``.
 
 They need torch, which the runtime install (``pip install dronekey``) leaves out. This module
 imports nothing of torch, so a runtime install answers with one line naming the extra to install
@@ -11,7 +12,13 @@ from __future__ import annotations
 import importlib.util
 import sys
 
-__all__ = ["calibrate_spread_main", "export_main", "train_heading_main", "train_main"]
+__all__ = [
+    "calibrate_spread_main",
+    "export_main",
+    "train_heading_main",
+    "train_main",
+    "train_verifier_main",
+]
 
 TRAIN_EXTRA_HINT = "pip install 'dronekey[train]' (torch==2.13.0, the CPU wheel)"
 
@@ -39,6 +46,16 @@ def train_heading_main(argv: list[str] | None = None) -> int:
         print(message, file=sys.stderr)
         return 2
     from dronekey.training.heading_cli import main  # torch from here on
+
+    return main(argv)
+
+
+def train_verifier_main(argv: list[str] | None = None) -> int:
+    """``dronekey-train-verifier``."""
+    if message := torch_missing_message("dronekey-train-verifier"):
+        print(message, file=sys.stderr)
+        return 2
+    from dronekey.training.verifier_cli import main  # torch from here on
 
     return main(argv)
 

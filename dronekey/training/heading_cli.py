@@ -13,14 +13,12 @@ import argparse
 import json
 import logging
 import sys
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict
 from pathlib import Path
 
-import torch
-
 from dronekey.training.heading_data import SHARD_SIZE, load_shards, write_shards
 from dronekey.training.heading_train import HeadingRecipe, export_heading_model, train_heading
+from dronekey.training.patch_cli import add_patch_arguments, patch_usage_error, render_shards
 
 __all__ = ["build_parser", "main"]
 
@@ -36,23 +34,16 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     p.add_argument("--out", default="runs/heading", help="folder for data shards, checkpoint, history, model")
-    p.add_argument(
-        "--seeds",
-        type=int,
-        nargs="+",
-        default=[31001, 31002],
-        help="training sampler seeds, one process each",
+    add_patch_arguments(
+        p,
+        seeds=[31001, 31002],
+        shards=118,
+        shards_help=f"shards of {SHARD_SIZE} rendered crops per training seed",
+        val_seed=31099,
+        val_shards=6,
+        epochs=HeadingRecipe.epochs,
+        epochs_help="passes over the training patches",
     )
-    p.add_argument(
-        "--shards", type=int, default=118, help=f"shards of {SHARD_SIZE} rendered crops per training seed"
-    )
-    p.add_argument("--val-seed", type=int, default=31099, help="validation sampler seed (never trained on)")
-    p.add_argument("--val-shards", type=int, default=6, help="validation shards")
-    p.add_argument("--keypoint-model", default=None, help="keypoint network whose keypoints it learns on")
-    p.add_argument(
-        "--epochs", type=float, default=HeadingRecipe.epochs, help="passes over the training patches"
-    )
-    p.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")
     p.add_argument("--export", default=None, help="ONNX file to write (default: OUT/heading.onnx)")
     return p
 
@@ -60,32 +51,13 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    for name in ("shards", "val_shards"):
-        if getattr(args, name) < 1:
-            print(
-                f"dronekey-train-heading: --{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}",
-                file=sys.stderr,
-            )
-            return 2
-    if args.val_seed in args.seeds:
-        print(f"dronekey-train-heading: --val-seed {args.val_seed} is also a training seed", file=sys.stderr)
-        return 2
-    if args.epochs <= 0:
-        print(f"dronekey-train-heading: --epochs must be > 0, got {args.epochs}", file=sys.stderr)
+    if message := patch_usage_error(args):
+        print(f"dronekey-train-heading: {message}", file=sys.stderr)
         return 2
     out = Path(args.out)
-    data = out / "data"
     try:
-        jobs = [(s, args.shards) for s in args.seeds] + [(args.val_seed, args.val_shards)]
-        with ProcessPoolExecutor(max_workers=len(args.seeds)) as pool:
-            futures = [
-                pool.submit(write_shards, data, seed, n, args.keypoint_model, i == 0)
-                for i, (seed, n) in enumerate(jobs)
-            ]
-            paths = [f.result() for f in futures]
-        if args.threads:
-            torch.set_num_threads(args.threads)
-        train, val = load_shards([p for seed_paths in paths[:-1] for p in seed_paths]), load_shards(paths[-1])
+        train_paths, val_paths = render_shards(write_shards, args, out / "data")
+        train, val = load_shards(train_paths), load_shards(val_paths)
         LOG.info(
             "training on %d patches (%.1f %% in order), validating on %d",
             len(train[1]),

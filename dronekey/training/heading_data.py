@@ -21,22 +21,14 @@ import logging
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
-from dronekey.perception.heading_model import PATCH_SIZE, canonical_patches
-from dronekey.perception.keypoint_model import (
-    HEADING_TWIN,
-    KeypointModel,
-    in_heading_order,
-    mirror_averaged,
-)
-from dronekey.sim_replay.sampler import CropSampler, SamplerConfig
+from dronekey.perception.keypoint_model import HEADING_TWIN, KeypointModel
+from dronekey.perception.patch_classifier import PATCH_SIZE, canonical_patches
+from dronekey.training.patch_shards import SHARD_SIZE, network_outputs, write_patch_shards
 
 __all__ = ["SHARD_SIZE", "load_shards", "write_shards"]
 
 LOG = logging.getLogger(__name__)
-
-SHARD_SIZE = 1000
 
 
 def write_shards(
@@ -47,40 +39,16 @@ def write_shards(
     progress: bool = False,
     shard_size: int = SHARD_SIZE,
 ) -> list[Path]:
-    """Render ``shards`` shards of ``shard_size`` crops with sampler seed ``seed`` into ``out``.
-
-    One sampler stream per seed, shard after shard. Shards already there are kept: when all are,
-    nothing is rendered; otherwise the stream is drawn again from its start (so that every shard
-    holds the same crops whichever run wrote it) and only the missing shards are written.
-    """
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    paths = [out / f"s{seed}_{index:03d}.npz" for index in range(shards)]
-    if all(path.is_file() for path in paths):
-        return paths
-    sampler = CropSampler(SamplerConfig(negative_fraction=0.0), seed=seed)
-    model = KeypointModel(keypoint_model, threads=1, mirror_average=True)
-    for path in tqdm(paths, desc=f"shards of seed {seed}", disable=not progress):
-        samples = [sampler.sample() for _ in range(shard_size)]
-        if path.is_file():
-            continue
-        samples = [s for s in samples if s.present]
-        partial = path.with_name(path.name + ".partial")  # a stopped run leaves no half shard
-        with partial.open("wb") as f:
-            np.savez(f, **_label(model, samples))
-        partial.replace(path)
-    return paths
+    """Render ``shards`` shards of ``shard_size`` drone crops with sampler seed ``seed`` into ``out``
+    (``patch_shards.write_patch_shards``: resumable, one sampler stream per seed)."""
+    return write_patch_shards(out, seed, shards, _label, 0.0, keypoint_model, progress, shard_size)
 
 
 def _label(model: KeypointModel, samples: list) -> dict[str, np.ndarray]:
+    samples = [s for s in samples if s.present]
     crops = np.stack([s.image for s in samples])
     S = model.input_size
-    keypoints = []
-    for i in range(0, len(crops), 64):  # batches of 64: a batch of 2,000 crops takes gigabytes
-        tensor = model.preprocess(crops[i : i + 64])
-        raw = model.inference(np.concatenate([tensor, tensor[..., ::-1]]))
-        keypoints.append(in_heading_order(mirror_averaged(raw, len(tensor))).keypoints)
-    kp = np.concatenate(keypoints)
+    kp = network_outputs(model, crops).keypoints
     patches, ratios = canonical_patches(crops, kp, PATCH_SIZE)
     truth = np.stack([s.keypoints for s in samples])
     err = np.abs(kp - truth).sum(-1).mean(-1) * S

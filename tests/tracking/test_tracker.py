@@ -250,6 +250,26 @@ def test_confirmation_needs_every_confirming_hit_to_be_sure_not_only_their_mean(
     assert tracks[-1][0].status is TrackStatus.CONFIRMED
 
 
+def test_confirmation_needs_the_verifier_to_call_the_hits_a_drone():
+    """A hypothesis the drone verifier rejects (mean drone probability under confirm_drone_p) is
+    never confirmed however sure the network's presence is; no verdict (NaN) does not block."""
+
+    def statuses(drone_p, confirm_drone_p=0.5):
+        tracker = Tracker(TrackerConfig(confirm_hits=3, confirm_window=5, confirm_drone_p=confirm_drone_p))
+        m = measurement(seen_from_below(0.0), [0.0, 0.0, 6.0])
+        out = []
+        for k, p in enumerate(drone_p):
+            out.append(tracker.update(t_ns(k), [m], [1.0], None, None, None, [p])[0].status)
+        return out
+
+    assert statuses([0.9, 0.8, 0.95])[-1] is TrackStatus.CONFIRMED
+    assert TrackStatus.CONFIRMED not in statuses([0.9, 0.1, 0.2, 0.3, 0.1])  # mean under 0.5
+    assert statuses([math.nan] * 3)[-1] is TrackStatus.CONFIRMED
+    assert statuses([0.1] * 3, confirm_drone_p=0.0)[-1] is TrackStatus.CONFIRMED  # off
+    with pytest.raises(ValueError, match="confirm_drone_p"):
+        TrackerConfig(confirm_drone_p=1.5)
+
+
 # ---------------------------------------------------------------------- gating and association
 def test_gating_rejects_an_outlier():
     tracker = Tracker(TrackerConfig(max_tracks=1))

@@ -1,5 +1,5 @@
-"""dronekey-train, dronekey-train-heading and dronekey-export in a runtime install (no torch): one
-line naming the extra."""
+"""dronekey-train, dronekey-train-heading, dronekey-train-verifier and dronekey-export in a runtime
+install (no torch): one line naming the extra."""
 
 import subprocess
 import sys
@@ -20,6 +20,7 @@ WITHOUT_TORCH = (
         ("train_main", "dronekey-train"),
         ("export_main", "dronekey-export"),
         ("train_heading_main", "dronekey-train-heading"),
+        ("train_verifier_main", "dronekey-train-verifier"),
     ],
 )
 def test_without_torch_one_line_and_the_extra(main, command):
@@ -34,7 +35,7 @@ def test_without_torch_one_line_and_the_extra(main, command):
     )
 
 
-@pytest.mark.parametrize("main", ["train_main", "export_main", "train_heading_main"])
+@pytest.mark.parametrize("main", ["train_main", "export_main", "train_heading_main", "train_verifier_main"])
 def test_with_torch_the_command_runs(main, capsys):
     from dronekey.training import entry_points
 

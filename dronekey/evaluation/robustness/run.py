@@ -34,7 +34,8 @@ from dronekey.evaluation.robustness.scoring import (
     score_sequence,
 )
 from dronekey.evaluation.robustness.seed_sets import check_seeds, seed_ranges
-from dronekey.perception.heading_model import default_heading_model_path
+from dronekey.perception.drone_verifier import load_verifier
+from dronekey.perception.heading_model import load_heading_model
 from dronekey.perception.keypoint_model import KeypointModel
 from dronekey.sim_replay.io.sequence_reader import load_sequence
 
@@ -56,6 +57,8 @@ def run_robustness(
     width: int = 1920,
     height: int = 1080,
     mirror_average: bool = True,
+    front_back: bool | str | Path = True,
+    verifier: bool | str | Path = True,
     progress: bool = False,
     select: Sequence[str] | None = None,
 ) -> RobustnessReport:
@@ -72,6 +75,8 @@ def run_robustness(
     leds, backgrounds, motions, far_range_scale, drone_free, width, height : the matrix
         (``plan_matrix``).
     mirror_average : passed to the pipeline (the daemon's default).
+    front_back, verifier : the pipeline's front/back classifier and drone verifier: True the
+        shipped ones, a path another, False none.
     progress : tqdm bars on stderr while rendering and evaluating.
     select : glob patterns on the sequence names (``s6501-seq11-nodrone-sky``, ...); only the
         sequences matching one of them are rendered and scored, each with the seeds it has in the
@@ -107,7 +112,8 @@ def run_robustness(
     out_dir = Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():
         raise ValueError(f"out_dir must be a folder, got the file {str(out_dir)!r}")
-    model = KeypointModel(model_path)  # a bad model fails now, not after the renders
+    model = KeypointModel(model_path)  # bad models fail now, not after the renders
+    heading, drone_verifier = load_heading_model(front_back), load_verifier(verifier)
     entries = [e for plan in plans.values() for e in plan]
     if select is not None:
         patterns = list(select)
@@ -128,7 +134,8 @@ def run_robustness(
         "select": None if select is None else list(select),
         "model": str(model.path),
         "model_has_heading_head": bool(model.has_heading),
-        "front_back": str(default_heading_model_path()),  # the pipeline's default classifier
+        "front_back": str(heading.path) if heading else None,
+        "verifier": str(drone_verifier.path) if drone_verifier else None,
         "mirror_average": bool(mirror_average),
         "match_gate": {"min_m": MATCH_GATE_M, "range_fraction": MATCH_GATE_FRACTION},
         "wrong_heading_deg": WRONG_HEADING_DEG,
@@ -153,6 +160,8 @@ def run_robustness(
                 load_sequence(r.json_path),
                 settings["model"],
                 mirror_average=mirror_average,
+                front_back=settings["front_back"] or False,
+                verifier=settings["verifier"] or False,
                 on_frame=bar.update,
             )
             report.sequences.append(EvaluatedSequence(r, scores))

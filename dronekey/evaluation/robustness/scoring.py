@@ -115,6 +115,8 @@ def score_sequence(
     model_path: str | Path | None = None,
     *,
     mirror_average: bool = True,
+    front_back: bool | str | Path = True,
+    verifier: bool | str | Path = True,
     on_frame: Callable[[], object] | None = None,
 ) -> SequenceScores:
     """Run a fresh ``TrackingPipeline`` over a loaded sequence and score every frame.
@@ -125,6 +127,8 @@ def score_sequence(
         marks a drone-free sequence.
     model_path : ONNX keypoint model; the shipped one by default.
     mirror_average : passed to the pipeline (the daemon's default).
+    front_back, verifier : the pipeline's front/back classifier and drone verifier (``heading_model``
+        and ``verifier`` of ``TrackingPipeline``: True the shipped ones, a path another, False none).
     on_frame : called after each frame (a progress bar's ``update``).
 
     Returns
@@ -133,7 +137,12 @@ def score_sequence(
     """
     no_drone = bool(seq.info.get("no_drone", False))
     pipeline = TrackingPipeline(
-        seq.camera, model_path, drone=sequence_spec(seq), mirror_average=mirror_average
+        seq.camera,
+        model_path,
+        drone=sequence_spec(seq),
+        mirror_average=mirror_average,
+        heading_model=front_back,
+        verifier=verifier,
     )
     rows: dict[str, list] = {
         k: []

@@ -1,0 +1,168 @@
+"""What the patch classifiers' training shares (front/back, drone verifier): the recipe, the
+augmentation of everything that must not decide, the training loop and the checked ONNX export.
+
+Recipe: AdamW, one-cycle learning rate, batches of front-up patches, binary cross-entropy with
+labels smoothed. Every batch is augmented: the patch turned 180 degrees (for the front/back
+classifier its label flips: it is the twin order; for the verifier it does not), mirrored
+left/right (front stays front), colour channels permuted, grey on a fifth, brightness and
+contrast, and shifts of up to 3 px (keypoint noise beyond the network's own).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import onnxruntime as ort
+import torch
+from torch import nn
+from torch.nn import functional
+from tqdm import tqdm
+
+from dronekey import __version__
+from dronekey.perception.patch_classifier import INPUT_NAME, PATCH_SIZE, patches_to_tensor
+from dronekey.training.export import write_metadata
+
+__all__ = ["PatchRecipe", "augment", "export_patch_classifier", "patch_logits", "train_patch_classifier"]
+
+LOG = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class PatchRecipe:
+    """How long and how fast a patch classifier trains."""
+
+    epochs: float = 8.0
+    batch: int = 256
+    lr: float = 3e-3
+    weight_decay: float = 1e-4
+    label_smoothing: float = 0.02
+    seed: int = 0
+
+
+def patch_logits(model: nn.Module, patches: np.ndarray, batch: int = 1024) -> np.ndarray:
+    """The model's logits (N,) on uint8 patches (N, P, P, 3), in eval mode, without gradients."""
+    was_training = model.training
+    model.eval()
+    with torch.no_grad():
+        logits = torch.cat(
+            [
+                model(torch.from_numpy(patches_to_tensor(patches[i : i + batch])))
+                for i in range(0, len(patches), batch)
+            ]
+        ).numpy()
+    model.train(was_training)
+    return logits
+
+
+def augment(
+    x: torch.Tensor, y: torch.Tensor, g: torch.Generator, turn_flips_label: bool = True
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Patches (B, 3, P, P) and labels (B,) with what must not decide randomised (module
+    docstring); ``turn_flips_label``: a patch turned 180 degrees gets the opposite label."""
+    B = x.shape[0]
+    turn = torch.rand(B, generator=g) < 0.5
+    x = torch.where(turn[:, None, None, None], torch.flip(x, dims=(2, 3)), x)
+    if turn_flips_label:
+        y = torch.where(turn, 1 - y, y)
+    mirror = torch.rand(B, generator=g) < 0.5
+    x = torch.where(mirror[:, None, None, None], torch.flip(x, dims=(3,)), x)
+    perm = torch.argsort(torch.rand(B, 3, generator=g), dim=1)
+    x = torch.gather(x, 1, perm[:, :, None, None].expand_as(x))
+    grey = torch.rand(B, generator=g) < 0.2
+    x = torch.where(grey[:, None, None, None], x.mean(1, keepdim=True).expand_as(x), x)
+    x = x * (1 + 0.3 * (torch.rand(B, 1, 1, 1, generator=g) - 0.5)) + 0.3 * (
+        torch.rand(B, 1, 1, 1, generator=g) - 0.5
+    )
+    dy, dx = (int(v) for v in torch.randint(-3, 4, (2,), generator=g))
+    return torch.roll(x, shifts=(dy, dx), dims=(2, 3)), y
+
+
+def train_patch_classifier(
+    net: nn.Module,
+    model: nn.Module,
+    draw: Callable[[np.random.Generator, int], tuple[np.ndarray, np.ndarray]],
+    steps: int,
+    validate: Callable[[nn.Module], dict],
+    out: str | Path,
+    recipe: PatchRecipe,
+    turn_flips_label: bool,
+    desc: str,
+    progress: bool = False,
+) -> list[dict]:
+    """Train ``net`` (the one-logit CNN inside the exported ``model`` wrapper) for ``steps``
+    batches that ``draw(rng, batch)`` returns as (uint8 patches, labels); ``validate(model)``
+    every 1,000 steps and at the end; keep ``out/last.pt`` and ``out/history.json``. Returns the
+    history."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    torch.manual_seed(recipe.seed)
+    g = torch.Generator().manual_seed(recipe.seed)
+    rng = np.random.default_rng(recipe.seed)
+    opt = torch.optim.AdamW(net.parameters(), lr=recipe.lr, weight_decay=recipe.weight_decay)
+    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=recipe.lr, total_steps=steps, pct_start=0.05)
+    history: list[dict] = []
+    t0 = time.time()
+    smooth = recipe.label_smoothing
+    for step in tqdm(range(steps), desc=desc, disable=not progress):
+        patches, labels = draw(rng, recipe.batch)
+        x, y = augment(
+            torch.from_numpy(patches_to_tensor(patches)), torch.from_numpy(labels), g, turn_flips_label
+        )
+        # f alone with the 180-degree turn as augmentation: half the work of the wrapper's pair
+        loss = functional.binary_cross_entropy_with_logits(net(x), y * (1 - 2 * smooth) + smooth)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        sched.step()
+        if (step + 1) % 1000 == 0 or step + 1 == steps:
+            entry = {"step": step + 1, "seconds": round(time.time() - t0), "loss": float(loss.detach())}
+            entry.update(validate(model))
+            history.append(entry)
+            LOG.info("step %d/%d: %s", step + 1, steps, json.dumps(entry))
+            torch.save(
+                {"model": net.state_dict(), "recipe": asdict(recipe), "step": step + 1}, out / "last.pt"
+            )
+            (out / "history.json").write_text(json.dumps(history, indent=1))
+    model.eval()
+    return history
+
+
+def export_patch_classifier(
+    model: nn.Module, path: str | Path, output_name: str, metadata: dict | None = None
+) -> Path:
+    """Write ``model`` as ONNX (opset 18, dynamic batch) with JSON metadata (``trained_on``,
+    ``figures`` ...), and check that ONNX Runtime answers as torch does."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    model.eval()
+    x = torch.randn(2, 3, PATCH_SIZE, PATCH_SIZE)
+    torch.onnx.export(
+        model,
+        (x,),
+        str(path),
+        input_names=[INPUT_NAME],
+        output_names=[output_name],
+        opset_version=18,
+        dynamo=True,
+        external_data=False,
+        dynamic_shapes={"x": {0: torch.export.Dim("batch", min=1)}},
+        verbose=False,
+    )
+    meta = {"producer": f"dronekey {__version__}", "patch_size": PATCH_SIZE, **(metadata or {})}
+    write_metadata(path, {key: json.dumps(value) for key, value in meta.items()})
+    with torch.no_grad():
+        expected = model(x).numpy()
+    got = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"]).run(
+        None, {INPUT_NAME: x.numpy()}
+    )[0]
+    if not np.allclose(got, expected, atol=1e-4):
+        raise RuntimeError(
+            f"{path}: ONNX Runtime's logits differ from torch's by {np.abs(got - expected).max()}"
+        )
+    return path
