@@ -13,7 +13,7 @@ the patch expects them; clutter's do not.
 - ``DroneVerifier.inference``: the ONNX classifier, symmetric by construction
   (``logit(x) = (f(x) + f(x turned 180 deg)) / 2``), so the verdict does not depend on which of the
   two orders the keypoints came in.
-- ``DroneVerifier.postprocess``: the probability that the patch is a drone.
+- postprocess (``PatchClassifier.postprocess``): the probability that the patch is a drone.
 
 The tracker uses it as confirmation evidence (``TrackerConfig.confirm_drone_p``): a hypothesis
 whose hits the verifier rejects is never confirmed, so it never reaches an output.
@@ -24,9 +24,7 @@ from __future__ import annotations
 from importlib import resources
 from pathlib import Path
 
-import numpy as np
-
-from dronekey.perception.patch_classifier import PatchClassifier, sigmoid
+from dronekey.perception.patch_classifier import PatchClassifier
 
 __all__ = ["DroneVerifier", "default_verifier_path", "load_verifier"]
 
@@ -58,16 +56,6 @@ class DroneVerifier(PatchClassifier):
             "dronekey-train-verifier",
             threads,
         )
-
-    def postprocess(self, logits: np.ndarray) -> np.ndarray:
-        """Probabilities (B,) that each patch shows a drone."""
-        return sigmoid(logits)
-
-    def __call__(self, crops_bgr: np.ndarray, keypoints_norm: np.ndarray) -> np.ndarray:
-        if len(crops_bgr) == 0:
-            return np.zeros(0, dtype=np.float32)
-        tensor, _ = self.preprocess(crops_bgr, keypoints_norm)
-        return self.postprocess(self.inference(tensor))
 
 
 def load_verifier(choice: bool | str | Path | None) -> DroneVerifier | None:

@@ -90,12 +90,6 @@ class HeadingModel(PatchClassifier):
         too short to say."""
         return np.where(axis_ratios < self.min_axis_ratio, 0.5, sigmoid(logits)).astype(np.float32)
 
-    def __call__(self, crops_bgr: np.ndarray, keypoints_norm: np.ndarray) -> np.ndarray:
-        if len(crops_bgr) == 0:
-            return np.zeros(0, dtype=np.float32)
-        tensor, ratios = self.preprocess(crops_bgr, keypoints_norm)
-        return self.postprocess(self.inference(tensor), ratios)
-
 
 def load_heading_model(choice: bool | str | Path) -> HeadingModel | None:
     """The classifier a pipeline asked for: True the shipped one, a path that file, False none."""

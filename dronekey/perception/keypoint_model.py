@@ -408,5 +408,5 @@ class KeypointModel:
         if self.verifier is not None:
             drone_p = np.zeros(len(crops), dtype=np.float32)
             if tensor is not None:
-                drone_p[keep] = self.verifier.postprocess(self.verifier.inference(tensor))
+                drone_p[keep] = self.verifier.postprocess(self.verifier.inference(tensor), ratios)
         return raw, drone_p

@@ -151,6 +151,18 @@ class PatchClassifier:
         out = self.session.run([self.output_name], {INPUT_NAME: tensor})[0]
         return np.asarray(out, dtype=np.float32).reshape(-1)
 
+    def postprocess(self, logits: np.ndarray, axis_ratios: np.ndarray) -> np.ndarray:
+        """Probabilities (B,) from the logits; ``axis_ratios`` (``preprocess``'s second output)
+        for the classifiers whose answer depends on them."""
+        return sigmoid(logits)
+
+    def __call__(self, crops_bgr: np.ndarray, keypoints_norm: np.ndarray) -> np.ndarray:
+        """Crops (B, S, S, 3) and their keypoints (B, 4, 2, normalised) -> probabilities (B,)."""
+        if len(crops_bgr) == 0:
+            return np.zeros(0, dtype=np.float32)
+        tensor, ratios = self.preprocess(crops_bgr, keypoints_norm)
+        return self.postprocess(self.inference(tensor), ratios)
+
 
 def sigmoid(logits: np.ndarray) -> np.ndarray:
     """Probabilities of logits, float32, overflow-safe."""
