@@ -39,6 +39,7 @@ from dronekey.daemon.errors import ExitCode, UsageError
 from dronekey.daemon.sinks.annotated_video import H264Writer
 from dronekey.daemon.sinks.annotation_drawing import TrackOverlay, draw_tracks
 from dronekey.daemon.sources import FrameReader, SourceOpenError, make_reader
+from dronekey.frame_image import as_frame_image
 from dronekey.geometry.camera import CalibrationError, CameraModel
 
 __all__ = ["Recording", "annotate", "main", "read_recording"]
@@ -116,9 +117,9 @@ def _frames(reader: FrameReader) -> Iterator[tuple[int, Any]]:
     """(t_ns, BGR image) of every frame the reader delivers, in order."""
     while True:
         result = reader.read()
-        if result.bgr is None:
+        if result.image is None:
             return
-        yield int(result.t_ns), result.bgr
+        yield int(result.t_ns), as_frame_image(result.image).bgr().copy()  # drawn on
 
 
 def _camera(calib: Path | None, recording: Recording, reader: FrameReader, size: tuple[int, int]):

@@ -290,7 +290,7 @@ class DaemonApp:
 
     def _handle_frame(self, item: CapturedFrame) -> None:
         frame = item.frame
-        height, width = frame.bgr.shape[:2]
+        width, height = frame.size
         if (width, height) != self._resolution:
             self._prepare(width, height)
         try:
@@ -302,7 +302,6 @@ class DaemonApp:
                     "pipeline failed on frame %d (%d failures so far)", frame.index, self._counters.errors
                 )
             return
-        frame.bgr.flags.writeable = False  # shared read-only with the outputs
         tracks = tuple(output.tracks)
         update = FrameUpdate(
             camera_id=self.config.camera.id,
@@ -311,7 +310,7 @@ class DaemonApp:
             t_decoded_mono_ns=item.t_decoded_mono_ns,
             tracks=tracks,
             detection=output.detection,
-            image=frame.bgr,
+            image=frame.image,  # read-only: shared with the outputs
         )
         for worker in self._workers.values():
             worker.submit_update(update)

@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from dronekey.checks import int_at_least
+from dronekey.frame_image import FrameImage
 from dronekey.geometry.camera import CalibrationError, CameraModel
 from dronekey.geometry.crop import CropPolicy
 from dronekey.geometry.drone_spec import DroneSpec, load_spec
@@ -291,7 +292,7 @@ class TrackingPipeline:
         )
         self.frames = 0
         self.helper_cpu_s = 0.0  # CPU seconds spent on helper threads (the early saliency passes)
-        self._previous_bgr: np.ndarray | None = None
+        self._previous_image: FrameImage | None = None
 
     def info(self) -> dict:
         """Camera, model and drone, for status messages and the Zenoh ``info`` queryable."""
@@ -310,14 +311,14 @@ class TrackingPipeline:
 
     def process(self, frame: Frame) -> PipelineOutput:
         """Run every stage on one frame (frames must come in time order)."""
-        h, w = frame.bgr.shape[:2]
+        w, h = frame.size
         if (w, h) != self.camera.size:
             cw, ch = self.camera.size
             raise CalibrationError(f"frame {frame.index} is {w}x{h} but the camera model is {cw}x{ch}")
         self.frames += 1
         timings: dict[str, float] = {}
         t0 = time.perf_counter()
-        early = _Background(self.localizer.saliency, frame.bgr) if self._search_due() else None
+        early = _Background(self.localizer.saliency, frame.image) if self._search_due() else None
         measured, regions, rejections, state = self._track_crops(frame, w, h)
         timings["track_crop"] = _ms(t0)
         saliency = early.result() if early is not None else None
@@ -326,7 +327,7 @@ class TrackingPipeline:
         exclude = regions[1] if more_only else regions[0]
         if budget:
             t1 = time.perf_counter()
-            for det in self.localizer.acquire_all(frame.bgr, exclude, budget, saliency):
+            for det in self.localizer.acquire_all(frame.image, exclude, budget, saliency):
                 measurement, rejection = self.poses.measure_detection(det, None)
                 if measurement is not None:
                     measured.append(Measured(det, measurement))
@@ -335,10 +336,10 @@ class TrackingPipeline:
             timings["acquire"] = _ms(t1)
         t2 = time.perf_counter()
         measured = [
-            replace(m, change=frame_change(frame.bgr, self._previous_bgr, m.detection.keypoints_px))
+            replace(m, change=frame_change(frame.image, self._previous_image, m.detection.keypoints_px))
             for m in measured
         ]
-        self._previous_bgr = frame.bgr  # kept, not copied: no one writes to a frame once processed
+        self._previous_image = frame.image  # kept, not copied: a frame's image is read-only
         tracks = self.poses.track_all(frame.t_ns, measured)
         timings["track"] = _ms(t2)
         timings["total"] = _ms(t0)
@@ -398,7 +399,7 @@ class TrackingPipeline:
         taken: list = []  # keypoint boxes already measured this frame
         threshold = self.localizer.config.presence_threshold
         found = []  # (prediction, detection, keypoint box) of the crops that hold a drone, best first
-        for p, det in zip(owners, self.localizer.track_many(frame.bgr, boxes), strict=True):
+        for p, det in zip(owners, self.localizer.track_many(frame.image, boxes), strict=True):
             if det.presence >= threshold:
                 det = self.poses.order_keypoints(det, (p.R, p.t), p.track_id)
                 found.append((p, det, box_from_keypoints(det.keypoints_px, self.spec)))

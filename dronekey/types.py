@@ -9,6 +9,8 @@ from enum import StrEnum
 
 import numpy as np
 
+from dronekey.frame_image import FrameImage, as_frame_image
+
 __all__ = [
     "PUBLISHED_STATUSES",
     "Frame",
@@ -27,12 +29,26 @@ class Frame:
 
     index : frame number from the source, starting at 0.
     t_ns : capture time in integer nanoseconds (Unix epoch for live sources, stream PTS for files).
-    bgr : (H, W, 3) uint8 image in OpenCV's BGR order.
+    image : the pixels (``dronekey.frame_image``): the decoder's YUV planes, converted to colour
+        only where a stage needs it, or an (H, W, 3) uint8 BGR array (wrapped on construction).
     """
 
     index: int
     t_ns: int
-    bgr: np.ndarray
+    image: FrameImage
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "image", as_frame_image(self.image))
+
+    @property
+    def bgr(self) -> np.ndarray:
+        """The whole frame, (H, W, 3) uint8 BGR, read-only (converted on first use)."""
+        return self.image.bgr()
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """(width, height), px."""
+        return self.image.size
 
 
 @dataclass(frozen=True, slots=True)

@@ -66,7 +66,7 @@ def measure_decode(
                 if signals is not None:
                     check_signals(signals, done)
                 result = reader.read()
-                if result.bgr is None:
+                if result.image is None:
                     if done == 0 or not result.ended:
                         raise BenchError(f"--source: {setup.source} stopped delivering frames after {done}")
                     reader.close()

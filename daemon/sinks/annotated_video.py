@@ -188,7 +188,7 @@ class AnnotatedVideoSink(Sink):
         if update.image is None:
             self._without_image += 1
             return
-        image = update.image.copy()  # the frame is shared read-only with the other outputs
+        image = update.image.bgr().copy()  # the frame is shared read-only with the other outputs
         draw_tracks(image, [TrackOverlay.from_track(t) for t in update.tracks], self._camera)
         self._writer.write(image, update.t_ns)
 

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from dronekey.frame_image import FrameImage, as_frame_image
 from dronekey.types import KeypointDetection, Track
 
 __all__ = ["FrameUpdate", "Sink", "SinkStats", "SinkWorker"]
@@ -35,7 +36,9 @@ class FrameUpdate:
     t_decoded_mono_ns : ``time.monotonic_ns()`` when the frame left the decoder (latency origin).
     tracks : the tracks updated or predicted at this frame (possibly empty).
     detection : the keypoint model's answer on this frame, or None when it reported no drone.
-    image : the BGR frame, shared read-only (sinks must not modify it), or None.
+    image : the frame's pixels (``dronekey.frame_image``; a BGR array is wrapped), read-only and
+        shared with the other outputs, or None; ``image.bgr()`` converts the decoder's YUV to colour
+        on the sink's own thread, once per frame whichever sink asks first.
     """
 
     camera_id: str
@@ -44,7 +47,11 @@ class FrameUpdate:
     t_decoded_mono_ns: int
     tracks: tuple[Track, ...] = ()
     detection: KeypointDetection | None = None
-    image: np.ndarray | None = None
+    image: FrameImage | None = None
+
+    def __post_init__(self) -> None:
+        if self.image is not None:
+            object.__setattr__(self, "image", as_frame_image(self.image))
 
 
 class Sink(ABC):

@@ -13,6 +13,7 @@ from enum import StrEnum
 
 import numpy as np
 
+from dronekey.frame_image import FrameImage
 from dronekey.geometry.camera import CameraModel
 from dronekey.types import Frame
 
@@ -38,14 +39,16 @@ class SourceOpenError(Exception):
 class ReadResult:
     """One ``FrameReader.read`` answer.
 
-    bgr : the decoded (H, W, 3) uint8 frame, or None when there is none (see the flags).
+    image : the decoded frame, or None when there is none (see the flags): an (H, W, 3) uint8 BGR
+        array, or a ``FrameImage`` (the PyAV readers hand over the decoder's YUV planes, converted
+        to colour only where the pipeline or an output needs it).
     t_ns : the frame's timestamp (stream PTS for files, Unix epoch for live sources).
     corrupt : frames skipped as undecodable or malformed before this answer.
     ended : a finite source has no more frames.
     lost : a live source stopped delivering (timeout, disconnection); reconnect.
     """
 
-    bgr: np.ndarray | None = None
+    image: FrameImage | np.ndarray | None = None
     t_ns: int = 0
     corrupt: int = 0
     ended: bool = False

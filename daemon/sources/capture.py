@@ -263,7 +263,7 @@ class Capture:
     def _accept(self, result: ReadResult, t_offset_ns: int = 0) -> CapturedFrame:
         self._corrupt += result.corrupt
         self._next_index += result.corrupt  # keep indices equal to the source's frame numbers
-        frame = Frame(self._next_index, result.t_ns + t_offset_ns, result.bgr)
+        frame = Frame(self._next_index, result.t_ns + t_offset_ns, result.image)
         self._next_index += 1
         self._frames += 1
         self._last_frame_mono = time.monotonic()
@@ -280,7 +280,7 @@ class Capture:
         while not self._stop.is_set():
             with self._busy():
                 result = self.reader.read()
-            if result.bgr is None:
+            if result.image is None:
                 self._corrupt += result.corrupt
                 if not self.config.loop:
                     self._set_state(SourceState.ENDED, f"{self._frames} frames, {self._corrupt} corrupt")
@@ -351,7 +351,7 @@ class Capture:
         while not self._stop.is_set():
             with self._busy():
                 result = self.reader.read()
-            if result.bgr is None:
+            if result.image is None:
                 self._corrupt += result.corrupt
                 return "stream lost (timeout or disconnection)" if result.lost else "stream ended"
             self.queue.put(self._accept(result), self._stop)

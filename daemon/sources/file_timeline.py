@@ -108,14 +108,14 @@ class FirstFramePeek:
     def _peek_first_frame(self, cut: str | None) -> None:
         """Decode the first frame; ``cut`` is the file's truncation, if any (``truncation``)."""
         first = self._decode_next()
-        if first.bgr is None:
+        if first.image is None:
             self.close()
             why = f": the file is truncated ({cut})" if cut else ""
             raise SourceOpenError(f"{self.path} holds no decodable video frame{why}")
         if cut and not self._warned_truncated:  # said once, not on every pass of --loop
             log.warning("%s is truncated (%s): reading the frames it holds", self.path, cut)
             self._warned_truncated = True
-        self._size = (first.bgr.shape[1], first.bgr.shape[0])
+        self._size = (first.image.shape[1], first.image.shape[0])
         self._peeked = first
 
     def read(self) -> ReadResult:

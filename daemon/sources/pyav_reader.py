@@ -42,7 +42,6 @@ from fractions import Fraction
 from pathlib import Path
 
 import av
-import cv2
 import numpy as np
 
 from dronekey.daemon.config.source import NetworkSettings
@@ -51,6 +50,7 @@ from dronekey.daemon.sources.file_timeline import FileTimeline, FirstFramePeek
 from dronekey.daemon.sources.opencv_readers import redact_url
 from dronekey.daemon.sources.sidecar import sidecar_camera
 from dronekey.daemon.sources.truncation import truncation
+from dronekey.frame_image import I420Image
 from dronekey.geometry.camera import CameraModel
 
 __all__ = ["FAST_DECODE_OPTIONS", "PyAVFileReader", "PyAVStreamReader", "pyav_decode_threads"]
@@ -163,12 +163,14 @@ _BT601_SPACES = (2, 5, 6)  # AVCOL_SPC_UNSPECIFIED, AVCOL_SPC_BT470BG, AVCOL_SPC
 _FULL_RANGE = 2  # AVCOL_RANGE_JPEG
 
 
-def bgr_from_frame(frame: av.VideoFrame) -> np.ndarray:
-    """The frame as an (H, W, 3) uint8 BGR array.
+def image_from_frame(frame: av.VideoFrame) -> I420Image | np.ndarray:
+    """The frame's pixels for the pipeline.
 
     The common camera and encoder output, 4:2:0 planar YUV of even size tagged BT.601 or not at
-    all, is converted by OpenCV from the planes (about 2 ms a 1080p frame less CPU than swscale
-    on the 2-core box, the same colours within 3 levels); every other format goes through swscale.
+    all, is handed over as its planes (``I420Image``): OpenCV converts to colour only the regions a
+    stage needs (a whole 1080p frame costs about 1 ms of CPU on the 2-core box, and about 2 ms more
+    through swscale; the same colours within 3 levels). Every other format becomes an (H, W, 3)
+    uint8 BGR array through swscale.
     """
     if (
         frame.format.name == "yuv420p"
@@ -177,7 +179,7 @@ def bgr_from_frame(frame: av.VideoFrame) -> np.ndarray:
         and frame.colorspace in _BT601_SPACES
         and frame.color_range != _FULL_RANGE
     ):
-        return cv2.cvtColor(frame.to_ndarray(), cv2.COLOR_YUV2BGR_I420)
+        return I420Image(frame.to_ndarray())
     return frame.to_ndarray(format="bgr24")
 
 
@@ -226,11 +228,11 @@ class PyAVFileReader(FirstFramePeek, _PyAVReader):
                 break
             t_ns = self._stream_time_ns(frame)
             if t_ns is None:  # no PTS: stepped by the nominal frame interval
-                return ReadResult(bgr_from_frame(frame), self._timeline.stamp(None), corrupt=failures)
+                return ReadResult(image_from_frame(frame), self._timeline.stamp(None), corrupt=failures)
             if self._timeline.in_counted_gap(t_ns):
                 continue
             lost = max(failures, self._timeline.lost_before(t_ns))
-            return ReadResult(bgr_from_frame(frame), self._timeline.stamp(t_ns), corrupt=lost)
+            return ReadResult(image_from_frame(frame), self._timeline.stamp(t_ns), corrupt=lost)
         return ReadResult(ended=True)
 
     def bundled_camera(self) -> tuple[CameraModel, str] | None:
@@ -279,7 +281,7 @@ class PyAVStreamReader(_PyAVReader):
             return ReadResult(lost=True)
         if frame is None:
             return ReadResult(lost=True)
-        return ReadResult(bgr_from_frame(frame), time.time_ns(), corrupt=rejected)
+        return ReadResult(image_from_frame(frame), time.time_ns(), corrupt=rejected)
 
 
 def _reason(exc: BaseException) -> str:

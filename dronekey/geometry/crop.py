@@ -21,6 +21,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from dronekey.frame_image import FrameImage
+
 __all__ = ["CropPolicy", "crop_square", "from_normalised", "roi_around_box", "to_normalised"]
 
 ROI = tuple[int, int, int]
@@ -71,18 +73,21 @@ def roi_around_box(cx: float, cy: float, side: float) -> ROI:
     return int(x0), int(y0), int(s)
 
 
-def crop_square(image: np.ndarray, roi: ROI, out_size: int) -> np.ndarray:
+def crop_square(image: np.ndarray | FrameImage, roi: ROI, out_size: int) -> np.ndarray:
     """Cut ``roi`` out of ``image`` (black outside it) and resize it to ``out_size`` square.
 
-    Downscaling uses area averaging (no aliasing of small propellers), upscaling bilinear; both
-    keep the pixel-centre convention, so ``to_normalised`` maps keypoints exactly.
+    ``image``: an array (H, W[, C]), or a frame's ``FrameImage``, of which only the region inside
+    the frame is converted to BGR. Downscaling uses area averaging (no aliasing of small
+    propellers), upscaling bilinear; both keep the pixel-centre convention, so ``to_normalised``
+    maps keypoints exactly.
     """
     x0, y0, side = roi
     h, w = image.shape[:2]
     xa, ya, xb, yb = max(x0, 0), max(y0, 0), min(x0 + side, w), min(y0 + side, h)
     if xa >= xb or ya >= yb:
-        return np.zeros((out_size, out_size, *image.shape[2:]), dtype=image.dtype)
-    patch = image[ya:yb, xa:xb]
+        dtype = np.uint8 if isinstance(image, FrameImage) else image.dtype
+        return np.zeros((out_size, out_size, *image.shape[2:]), dtype=dtype)
+    patch = image.region_bgr(xa, ya, xb, yb) if isinstance(image, FrameImage) else image[ya:yb, xa:xb]
     if (xa, ya, xb, yb) != (x0, y0, x0 + side, y0 + side):
         patch = cv2.copyMakeBorder(
             patch, ya - y0, y0 + side - yb, xa - x0, x0 + side - xb, cv2.BORDER_CONSTANT, value=0

@@ -25,6 +25,8 @@ import math
 
 import numpy as np
 
+from dronekey.frame_image import FrameImage
+
 __all__ = ["BOX_GROWTH", "HUB_HALF_SIDE", "MAX_SAMPLES_PER_SIDE", "RING_GROWTH", "frame_change"]
 
 BOX_GROWTH = 0.35  # the keypoints' box grown by this share of its longer side on each side (propellers)
@@ -33,7 +35,9 @@ HUB_HALF_SIDE = 0.25  # the squares around the propeller hubs whose change count
 MAX_SAMPLES_PER_SIDE = 200  # pixels sampled along a side at most: a near drone's region is strided
 
 
-def frame_change(current_bgr: np.ndarray, previous_bgr: np.ndarray | None, keypoints_px: np.ndarray) -> float:
+def frame_change(
+    current: np.ndarray | FrameImage, previous: np.ndarray | FrameImage | None, keypoints_px: np.ndarray
+) -> float:
     """How much more a detection's propellers changed between two frames than the ring around it
     did: 95th percentile of the largest colour channel's absolute difference in squares around the
     four hubs (where a drone changes most: its propellers spin, and a moving drone's thin arms and
@@ -42,20 +46,21 @@ def frame_change(current_bgr: np.ndarray, previous_bgr: np.ndarray | None, keypo
 
     Parameters
     ----------
-    current_bgr, previous_bgr : (H, W, 3) uint8 frames of one camera, consecutive.
+    current, previous : frames of one camera, consecutive: (H, W, 3) uint8 BGR arrays or
+        ``FrameImage`` s (only the region around the detection is converted to colour).
     keypoints_px : (4, 2) the detection's keypoints, full-frame pixels. The box is their box grown
         by ``BOX_GROWTH`` of its longer side plus 2 px; the hub squares have half-sides of
         ``HUB_HALF_SIDE`` of it plus 2 px; the ring is the box grown by a further ``RING_GROWTH``
         of the side plus 4 px, less the box.
     """
-    if previous_bgr is None or previous_bgr.shape != current_bgr.shape:
+    if previous is None or previous.shape != current.shape:
         return math.nan
     kp = np.asarray(keypoints_px, dtype=np.float64)
     if kp.shape != (4, 2) or not np.all(np.isfinite(kp)):
         return math.nan
     (x0, y0), (x1, y1) = kp.min(axis=0), kp.max(axis=0)
     side = max(x1 - x0, y1 - y0)
-    h, w = current_bgr.shape[:2]
+    h, w = current.shape[:2]
 
     def region(pad: float) -> tuple[int, int, int, int]:
         return (
@@ -71,8 +76,8 @@ def frame_change(current_bgr: np.ndarray, previous_bgr: np.ndarray | None, keypo
     if c1 - c0 < 3 or r1 - r0 < 3:
         return math.nan
     step = max(1, math.ceil(max(o1 - o0, q1 - q0) / MAX_SAMPLES_PER_SIDE))
-    a = current_bgr[q0:q1:step, o0:o1:step].astype(np.int16)
-    b = previous_bgr[q0:q1:step, o0:o1:step].astype(np.int16)
+    a = _region_bgr(current, o0, q0, o1, q1)[::step, ::step].astype(np.int16)
+    b = _region_bgr(previous, o0, q0, o1, q1)[::step, ::step].astype(np.int16)
     change = np.abs(a - b).max(axis=2)
     rows = np.arange(q0, q1, step)[:, None]
     cols = np.arange(o0, o1, step)[None, :]
@@ -85,3 +90,7 @@ def frame_change(current_bgr: np.ndarray, previous_bgr: np.ndarray | None, keypo
     if box.size == 0 or ring.size == 0:
         return math.nan
     return float(np.percentile(box, 95) - np.percentile(ring, 95))
+
+
+def _region_bgr(image: np.ndarray | FrameImage, x0: int, y0: int, x1: int, y1: int) -> np.ndarray:
+    return image.region_bgr(x0, y0, x1, y1) if isinstance(image, FrameImage) else image[y0:y1, x0:x1]

@@ -35,6 +35,7 @@ import numpy as np
 import onnxruntime as ort
 import psutil
 
+from dronekey.frame_image import FrameImage
 from dronekey.geometry.crop import ROI, crop_square, from_normalised
 from dronekey.perception.drone_verifier import DroneVerifier
 from dronekey.perception.heading_model import HeadingModel
@@ -52,6 +53,7 @@ __all__ = [
     "INPUT_NAME",
     "OUTPUT_NAMES",
     "KeypointModel",
+    "KeypointReading",
     "ModelFormatError",
     "RawOutputs",
     "default_model_path",
@@ -153,6 +155,27 @@ def mirrored_back(keypoints: np.ndarray) -> np.ndarray:
     out = keypoints[:, MIRROR].copy()
     out[..., 0] = 1.0 - out[..., 0]
     return out
+
+
+class KeypointReading(NamedTuple):
+    """The keypoint network's outputs on a batch of crops, before the patch classifiers.
+
+    crops : (B, S, S, 3) uint8 BGR, the network's input.
+    raw : the network's outputs (mirror-averaged when the model averages), or None when B = 0.
+    rois : the crops' (x0, y0, side), full-frame pixels.
+    presence : (B,) float32, the network's presence per crop.
+    """
+
+    crops: np.ndarray
+    raw: RawOutputs | None
+    rois: list[ROI]
+    presence: np.ndarray
+
+    def subset(self, select: Sequence[int]) -> KeypointReading:
+        """The reading of crops ``select`` only, in that order."""
+        idx = np.asarray(select, dtype=np.intp)
+        raw = RawOutputs(*(None if a is None else a[idx] for a in self.raw)) if len(idx) else None
+        return KeypointReading(self.crops[idx], raw, [self.rois[i] for i in idx], self.presence[idx])
 
 
 def mirror_averaged(raw: RawOutputs, n: int) -> RawOutputs:
@@ -371,22 +394,49 @@ class KeypointModel:
             )
         return detections
 
-    def detect(self, frame_bgr: np.ndarray, rois: Sequence[ROI]) -> list[KeypointDetection]:
-        """Crop ``rois`` out of a BGR frame, run the network, return one detection per roi."""
-        if len(rois) == 0:
-            return []
-        crops = np.stack([crop_square(frame_bgr, tuple(roi), self.input_size) for roi in rois])
+    def detect(self, frame: np.ndarray | FrameImage, rois: Sequence[ROI]) -> list[KeypointDetection]:
+        """Crop ``rois`` out of a frame (a BGR array, or a ``FrameImage`` of which only the crops
+        are converted to colour), run the network and the patch classifiers, return one detection
+        per roi: ``finish(read(frame, rois))``."""
+        return self.finish(self.read(frame, rois))
+
+    __call__ = detect
+
+    def read(self, frame: np.ndarray | FrameImage, rois: Sequence[ROI]) -> KeypointReading:
+        """The keypoint network alone on the crops of ``rois`` (mirror-averaged when set): a
+        reading to ``finish``, or to look at first (``rough``) when some crops may be cut again."""
+        rois = [tuple(int(v) for v in roi) for roi in rois]
+        if not rois:
+            s = self.input_size
+            return KeypointReading(np.zeros((0, s, s, 3), np.uint8), None, [], np.zeros(0, np.float32))
+        crops = np.stack([crop_square(frame, roi, self.input_size) for roi in rois])
         if not self.mirror_average:
             raw = self.inference(self.preprocess(crops))
         else:
             tensor = self.preprocess(crops)  # the mirrors are flipped after normalising: half the work
             raw = mirror_averaged(self.inference(np.concatenate([tensor, tensor[..., ::-1]])), len(rois))
-        drone_p = None
-        if self.heading_model is not None or self.verifier is not None:
-            raw, drone_p = self._read_patches(crops, raw)
-        return self.postprocess(raw, rois, drone_p)
+        return KeypointReading(crops, raw, rois, raw.presence)
 
-    __call__ = detect
+    def rough(self, reading: KeypointReading) -> list[KeypointDetection]:
+        """A reading's detections before the patch classifiers: the keypoints in the network's own
+        order, no ``drone_p``. Enough to decide where to cut again (boxes do not depend on the
+        order); ``finish`` gives the detections to use."""
+        return self.postprocess(reading.raw, reading.rois) if reading.rois else []
+
+    def finish(
+        self, reading: KeypointReading, select: Sequence[int] | None = None
+    ) -> list[KeypointDetection]:
+        """The detections of a reading (of its crops ``select`` only, in that order, when given):
+        the patch classifiers on the crops that hold a drone, then ``postprocess``. Crops cut again
+        need not pay for the classifiers on their first cut."""
+        if select is not None:
+            reading = reading.subset(select)
+        if not reading.rois:
+            return []
+        raw, drone_p = reading.raw, None
+        if self.heading_model is not None or self.verifier is not None:
+            raw, drone_p = self._read_patches(reading.crops, raw)
+        return self.postprocess(raw, reading.rois, drone_p)
 
     def _read_patches(self, crops: np.ndarray, raw: RawOutputs) -> tuple[RawOutputs, np.ndarray | None]:
         """The patch classifiers on the crops the network finds a drone in (presence at least

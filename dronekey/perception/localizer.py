@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from dronekey.frame_image import FrameImage
 from dronekey.geometry.camera import CameraModel
 from dronekey.geometry.crop import CropPolicy, roi_around_box
 from dronekey.geometry.drone_spec import DroneSpec
@@ -139,6 +140,9 @@ def box_from_pose(camera: CameraModel, spec: DroneSpec, R: np.ndarray, t: np.nda
 class Localizer:
     """Finds the drone in full frames and runs the keypoint model on the right crops.
 
+    Frames are BGR arrays or ``FrameImage`` s (``dronekey.frame_image``): of a decoder's YUV frame only
+    the crops and the search's downscaled copy are converted to colour.
+
     Parameters
     ----------
     model : KeypointModel
@@ -161,24 +165,26 @@ class Localizer:
         self._prev_small: np.ndarray | None = None
 
     # ------------------------------------------------------------------ tracking mode
-    def detect_in_box(self, frame_bgr: np.ndarray, box: Box) -> KeypointDetection:
+    def detect_in_box(self, frame: np.ndarray | FrameImage, box: Box) -> KeypointDetection:
         """Run the network on the training framing of ``box`` (no jitter)."""
-        return self.model.detect(frame_bgr, [self.crop.roi(box)])[0]
+        return self.model.detect(frame, [self.crop.roi(box)])[0]
 
-    def track(self, frame_bgr: np.ndarray, box: Box) -> KeypointDetection:
+    def track(self, frame: np.ndarray | FrameImage, box: Box) -> KeypointDetection:
         """Keypoints in the crop of a predicted box, recut once on them when the prediction was off
         (``LocalizerConfig.recut_shift`` / ``recut_scale``)."""
-        return self.track_many(frame_bgr, [box])[0]
+        return self.track_many(frame, [box])[0]
 
-    def track_many(self, frame_bgr: np.ndarray, boxes: Sequence[Box]) -> list[KeypointDetection]:
+    def track_many(self, frame: np.ndarray | FrameImage, boxes: Sequence[Box]) -> list[KeypointDetection]:
         """``track`` for several predicted boxes (one per live track) in one batched inference, and
-        one more batch for the crops that need a recut."""
+        one more batch for the crops that need a recut (the patch classifiers run on each crop's
+        last cut only)."""
         if not boxes:
             return []
-        dets = self.model.detect(frame_bgr, [self.crop.roi(box) for box in boxes])
+        reading = self.model.read(frame, [self.crop.roi(box) for box in boxes])
+        rough = self.model.rough(reading)
         cfg = self.config
         recut = []
-        for k, det in enumerate(dets):
+        for k, det in enumerate(rough):
             if det.presence < cfg.presence_threshold or not np.all(np.isfinite(det.keypoints_px)):
                 continue
             x0, y0, side = det.roi
@@ -186,31 +192,32 @@ class Localizer:
             shift = max(abs(nx + nside / 2 - x0 - side / 2), abs(ny + nside / 2 - y0 - side / 2)) / side
             if shift > cfg.recut_shift or abs(nside / side - 1.0) > cfg.recut_scale:
                 recut.append(k)
-        for k, again in zip(recut, self.refine_many(frame_bgr, [dets[k] for k in recut]), strict=True):
-            if again.presence >= cfg.presence_threshold:
-                dets[k] = again
-        return dets
+        again = dict(zip(recut, self.refine_many(frame, [rough[k] for k in recut]), strict=True))
+        held = {k for k, det in again.items() if det.presence >= cfg.presence_threshold}
+        first_cut = [k for k in range(len(rough)) if k not in held]  # no recut, or the recut lost it
+        dets = dict(zip(first_cut, self.model.finish(reading, first_cut), strict=True))
+        return [dets[k] if k in dets else again[k] for k in range(len(rough))]
 
-    def refine(self, frame_bgr: np.ndarray, detection: KeypointDetection) -> KeypointDetection:
+    def refine(self, frame: np.ndarray | FrameImage, detection: KeypointDetection) -> KeypointDetection:
         """Re-crop on the box implied by a detection's keypoints and run the network again."""
-        return self.refine_many(frame_bgr, [detection])[0]
+        return self.refine_many(frame, [detection])[0]
 
     def refine_many(
-        self, frame_bgr: np.ndarray, detections: Sequence[KeypointDetection]
+        self, frame: np.ndarray | FrameImage, detections: Sequence[KeypointDetection]
     ) -> list[KeypointDetection]:
         """``refine`` for several detections in one batch."""
         rois = [self.crop.roi(box_from_keypoints(d.keypoints_px, self.spec)) for d in detections]
-        return self.model.detect(frame_bgr, rois)
+        return self.model.detect(frame, rois)
 
     # ------------------------------------------------------------------ acquisition
-    def acquire(self, frame_bgr: np.ndarray) -> KeypointDetection | None:
+    def acquire(self, frame: np.ndarray | FrameImage) -> KeypointDetection | None:
         """Search the whole frame; the best refined detection above the presence threshold, or None."""
-        found = self.acquire_all(frame_bgr)
+        found = self.acquire_all(frame)
         return found[0] if found else None
 
     def acquire_all(
         self,
-        frame_bgr: np.ndarray,
+        frame: np.ndarray | FrameImage,
         exclude: Sequence[Box] = (),
         max_candidates: int | None = None,
         saliency: Saliency | None = None,
@@ -225,17 +232,24 @@ class Localizer:
         hypothesis downstream, so one false candidate cannot hide the drone. ``saliency``: this
         frame's pass, if already run (``saliency``), else it runs here.
         """
-        rois = self.candidate_rois(frame_bgr, exclude, max_candidates, saliency)
+        rois = self.candidate_rois(frame, exclude, max_candidates, saliency)
         if not rois:
             return []
         thr = self.config.presence_threshold
-        hits = [d for d in self.model.detect(frame_bgr, rois) if d.presence >= thr]
+        reading = self.model.read(frame, rois)
+        rough = self.model.rough(reading)
         # A candidate on a live track's drone is not refined: the track's own crop measures it.
-        hits = [d for d in hits if not _on_any(box_from_keypoints(d.keypoints_px, self.spec), exclude)]
+        hits = [
+            k
+            for k, d in enumerate(rough)
+            if d.presence >= thr and not _on_any(box_from_keypoints(d.keypoints_px, self.spec), exclude)
+        ]
         if not hits:
             return []
-        refined = self.refine_many(frame_bgr, hits)
-        found = [r if r.presence >= thr else d for d, r in zip(hits, refined, strict=True)]
+        refined = self.refine_many(frame, [rough[k] for k in hits])
+        failed = [k for k, r in zip(hits, refined, strict=True) if r.presence < thr]
+        first = dict(zip(failed, self.model.finish(reading, failed), strict=True))  # their first cut stands
+        found = [first.get(k, r) for k, r in zip(hits, refined, strict=True)]
         found.sort(key=lambda d: -d.presence)
         kept: list[KeypointDetection] = []
         boxes = list(exclude)
@@ -249,7 +263,7 @@ class Localizer:
 
     def candidate_rois(
         self,
-        frame_bgr: np.ndarray,
+        frame: np.ndarray | FrameImage,
         exclude: Sequence[Box] = (),
         max_candidates: int | None = None,
         saliency: Saliency | None = None,
@@ -257,13 +271,13 @@ class Localizer:
         """Square crops around the most salient blobs of the frame outside ``exclude``, best first
         (``saliency``: this frame's pass, if already run)."""
         if saliency is None:
-            saliency = self.saliency(frame_bgr)
+            saliency = self.saliency(frame)
         return select_rois(saliency, self.config, self.crop.min_side, exclude, max_candidates)
 
-    def saliency(self, frame_bgr: np.ndarray) -> Saliency:
+    def saliency(self, frame: np.ndarray | FrameImage) -> Saliency:
         """This frame's saliency pass against the last searched frame; it becomes the next one's
         motion reference. Safe to run on another thread while the network runs on this one."""
-        result = saliency_pass(frame_bgr, self.config, self._prev_small)
+        result = saliency_pass(frame, self.config, self._prev_small)
         self._prev_small = result.small
         return result
 
@@ -284,18 +298,22 @@ class Saliency:
 
 
 def saliency_pass(
-    frame_bgr: np.ndarray, config: LocalizerConfig, previous_small: np.ndarray | None = None
+    frame: np.ndarray | FrameImage, config: LocalizerConfig, previous_small: np.ndarray | None = None
 ) -> Saliency:
-    """Local contrast on a ``config.work_width`` copy of the frame, plus the change since
+    """Local contrast on a ``config.work_width`` copy of the frame (a BGR array or a ``FrameImage``,
+    whose YUV planes are downscaled before the colour conversion), plus the change since
     ``previous_small`` (that copy of an earlier frame) when ``config.use_motion``: their blobs.
 
     Pure (no state), so the pipeline may run it on another core while the track crops run.
     """
-    h, w = frame_bgr.shape[:2]
+    h, w = frame.shape[:2]
     cfg = config
     scale = min(1.0, cfg.work_width / w)
-    small = cv2.resize(frame_bgr, (round(w * scale), round(h * scale)), interpolation=cv2.INTER_AREA)
-    small = small.astype(np.float32)
+    size = (round(w * scale), round(h * scale))
+    if isinstance(frame, FrameImage):
+        small = frame.downscaled_bgr(*size).astype(np.float32)
+    else:
+        small = cv2.resize(frame, size, interpolation=cv2.INTER_AREA).astype(np.float32)
     background = cv2.GaussianBlur(small, (0, 0), cfg.background_sigma)
     maps = [_max_abs_difference(small, background)]
     if cfg.use_motion and previous_small is not None and previous_small.shape == small.shape:
@@ -339,7 +357,7 @@ def select_rois(
 
 
 def propose_rois(
-    frame_bgr: np.ndarray,
+    frame: np.ndarray | FrameImage,
     config: LocalizerConfig,
     min_side: float,
     previous_small: np.ndarray | None = None,
@@ -350,7 +368,7 @@ def propose_rois(
     frame's downscaled copy for the next call: ``saliency_pass`` then ``select_rois``. The
     training sampler calls it on drone-free backgrounds to mine the hard negatives the daemon
     would propose."""
-    saliency = saliency_pass(frame_bgr, config, previous_small)
+    saliency = saliency_pass(frame, config, previous_small)
     return select_rois(saliency, config, min_side, exclude, max_candidates), saliency.small
 
 

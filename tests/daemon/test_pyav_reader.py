@@ -32,9 +32,10 @@ from dronekey.daemon.sources.pyav_reader import (
     FAST_DECODE_OPTIONS,
     PyAVFileReader,
     PyAVStreamReader,
-    bgr_from_frame,
+    image_from_frame,
     pyav_decode_threads,
 )
+from dronekey.frame_image import I420Image, as_frame_image
 from dronekey.types import Frame
 
 
@@ -73,7 +74,7 @@ def test_fast_decode_skips_deblocking_and_stays_close_to_the_standard_decode(med
     import av
 
     with av.open(str(media / "h264.mp4")) as container:
-        standard = [bgr_from_frame(f) for f in container.decode(video=0)]
+        standard = [as_frame_image(image_from_frame(f)).bgr() for f in container.decode(video=0)]
     fast, _ = drain_file(media / "h264.mp4")
     capture = Capture(PyAVFileReader(media / "h264.mp4", fast_decode=False), SourceConfig(uri="x"))
     capture.start()
@@ -85,14 +86,16 @@ def test_fast_decode_skips_deblocking_and_stays_close_to_the_standard_decode(med
     assert FAST_DECODE_OPTIONS == {"skip_loop_filter": "all", "flags2": "+fast"}
 
 
-def test_bgr_from_planes_matches_swscale_and_other_formats_take_swscale(media):
+def test_planes_handed_over_match_swscale_and_other_formats_take_swscale(media):
     import av
 
     with av.open(str(media / "h264.mp4")) as container:
         frame = next(container.decode(video=0))
     assert frame.format.name == "yuv420p"
     swscale = frame.to_ndarray(format="bgr24")
-    ours = bgr_from_frame(frame)  # OpenCV's I420 conversion of the planes
+    image = image_from_frame(frame)  # the planes, converted by OpenCV where a stage asks
+    assert isinstance(image, I420Image) and image.size == (frame.width, frame.height)
+    ours = image.bgr()
     assert ours.shape == swscale.shape and ours.dtype == np.uint8
     assert np.abs(ours.astype(int) - swscale.astype(int)).max() <= 3
     for other in (
@@ -100,7 +103,13 @@ def test_bgr_from_planes_matches_swscale_and_other_formats_take_swscale(media):
         frame.reformat(format="nv12"),
         frame.reformat(width=319),
     ):
-        assert np.array_equal(bgr_from_frame(other), other.to_ndarray(format="bgr24"))
+        assert np.array_equal(image_from_frame(other), other.to_ndarray(format="bgr24"))
+
+
+def test_the_reader_hands_the_pipeline_the_planes(media):
+    frames, _ = drain_file(media / "h264.mp4")
+    assert all(isinstance(f.image, I420Image) for f in frames)
+    assert frames[3].size == (320, 240) and not frames[3].bgr.flags.writeable
 
 
 def test_corrupt_mjpeg_frames_are_counted_and_skipped(media, tmp_path):
@@ -180,7 +189,7 @@ def test_make_reader_picks_the_decoder(media, tmp_path):
     auto = reader(str(media / "h264.mp4"))
     assert isinstance(auto, FirstThatOpens)
     auto.open()
-    assert isinstance(auto.opened, PyAVFileReader) and auto.read().bgr is not None
+    assert isinstance(auto.opened, PyAVFileReader) and auto.read().image is not None
     auto.close()
     assert isinstance(reader(str(media / "h264.mp4"), "pyav"), PyAVFileReader)
     assert isinstance(reader(str(media / "h264.mp4"), "opencv"), VideoFileReader)
@@ -199,7 +208,7 @@ def test_auto_falls_back_to_opencv_where_pyav_cannot_open(media, tmp_path):
     path = media / "h264.mp4"
     reader = FirstThatOpens([RefusingReader(path), VideoFileReader(path)])
     reader.open()
-    assert isinstance(reader.opened, VideoFileReader) and reader.read().bgr.shape == (240, 320, 3)
+    assert isinstance(reader.opened, VideoFileReader) and reader.read().image.shape == (240, 320, 3)
     assert reader.frame_rate == pytest.approx(30) and reader.resolution == (320, 240)
     reader.close()
     both = FirstThatOpens([RefusingReader(path), RefusingReader(path)])

@@ -95,3 +95,27 @@ def test_keypoint_model_takes_the_classifiers_order():
     np.testing.assert_allclose(
         np.sort(det.keypoints_px, axis=0), np.sort(plain.keypoints_px, axis=0), atol=1e-3
     )  # the same four points, only their order may differ
+
+
+def test_a_reading_is_classified_only_where_asked_and_as_detect_would():
+    """``detect`` is ``finish(read(...))``; ``finish`` on a subset gives those crops' detections, and
+    the patch classifiers see only the crops asked for (a crop cut again skips them on its first cut)."""
+    drone = CropSampler(SamplerConfig(negative_fraction=0.0), seed=3).sample()
+    frame = np.full((256, 320, 3), 60, np.uint8)
+    frame[56:184, 64:192] = drone.image
+    rois = [(64, 56, 128), (0, 0, 100), (60, 50, 140)]
+    heading = HeadingModel()
+    model = KeypointModel(threads=1, heading_model=heading, spread_calibration=SpreadCalibration())
+    whole = model.detect(frame, rois)
+    reading = model.read(frame, rois)
+    assert [r.roi for r in model.rough(reading)] == rois and reading.presence.shape == (3,)
+    seen = []
+    inference = heading.inference
+    heading.inference = lambda tensor: seen.append(len(tensor)) or inference(tensor)
+    some = model.finish(reading, [2, 0])
+    for a, b in zip(some, [whole[2], whole[0]], strict=True):
+        assert (a.roi, a.presence, a.heading_p) == (b.roi, b.presence, b.heading_p)
+        np.testing.assert_array_equal(a.keypoints_px, b.keypoints_px)
+    assert model.finish(reading, []) == []
+    assert seen == [sum(d.presence >= 0.3 for d in (whole[2], whole[0]))]  # those two crops at most
+    assert model.detect(frame, []) == [] and model.finish(model.read(frame, [])) == []

@@ -142,7 +142,7 @@ def test_sim_swarm_is_a_daemon_source():
     assert reader.bundled_camera()[0].size == (1920, 1080)
     reader.open()
     first, second, end = reader.read(), reader.read(), reader.read()
-    assert first.bgr.shape == (1080, 1920, 3) and second.t_ns > first.t_ns >= 0
+    assert first.image.shape == (1080, 1920, 3) and second.t_ns > first.t_ns >= 0
     assert end.ended
     reader.close()
 

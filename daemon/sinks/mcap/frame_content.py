@@ -68,7 +68,7 @@ class FrameContent:
             message = messages.track_message(track, self._camera_id, self._camera_geo)
             out.append(("/dronekey/tracks", t_ns, messages.to_json_bytes(message)))
         if update.image is not None and self._images.due(t_ns):
-            out.append(("/camera/image", t_ns, self._jpeg(t_ns, update.image)))
+            out.append(("/camera/image", t_ns, self._jpeg(t_ns, update.image.bgr())))
             self._images.taken(t_ns)
         annotations = foxglove.image_annotations(
             t_ns, update.detection, update.tracks, self._image_size.scale
