@@ -21,6 +21,8 @@ class BenchSetup:
     source : video file (looped). calib, model : files (default: beside the video, the shipped
     model). decode_threads, model_threads : override ``source.decode_threads`` and ``model.threads``.
     front_back : False turns ``model.front_back`` off (the front/back classifier's cost, measured).
+    mirror_average : False turns ``model.mirror_average`` off (each crop once, not with its mirror:
+        what the averaging costs on a box, measured).
     """
 
     source: Path
@@ -29,6 +31,7 @@ class BenchSetup:
     decode_threads: int | None = None
     model_threads: int | None = None
     front_back: bool = True
+    mirror_average: bool = True
 
     def check(self) -> None:
         """Raise ``BenchError`` naming the first missing input file."""
@@ -68,6 +71,8 @@ class BenchSetup:
         )
         if not self.front_back:
             overrides["model.front_back"] = (False, "--no-front-back")
+        if not self.mirror_average:
+            overrides["model.mirror_average"] = (False, "--no-mirror-average")
         if outputs is not None:
             mcap_dir, udp_port = outputs
             overrides.update(

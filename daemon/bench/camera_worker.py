@@ -87,6 +87,7 @@ def main(argv: list[str] | None = None) -> int:
         args.get("decode_threads"),
         args.get("model_threads"),
         args.get("front_back", True),
+        args.get("mirror_average", True),
     )
     try:
         report = run_camera(setup, args["camera"], args["frames"], args["warmup"], args["clip_fps"])

@@ -51,6 +51,7 @@ def _worker_command(
         "decode_threads": setup.decode_threads,
         "model_threads": setup.model_threads,
         "front_back": setup.front_back,
+        "mirror_average": setup.mirror_average,
         "camera": camera_id,
         "frames": frames,
         "warmup": warmup,

@@ -54,7 +54,13 @@ def _table(report: dict, keys: tuple[str, ...], width: int) -> str:
 
 def _setup(args: argparse.Namespace) -> BenchSetup:
     return BenchSetup(
-        args.source, args.calib, args.model, args.decode_threads, args.model_threads, not args.no_front_back
+        args.source,
+        args.calib,
+        args.model,
+        args.decode_threads,
+        args.model_threads,
+        not args.no_front_back,
+        not args.no_mirror_average,
     )
 
 
@@ -138,6 +144,12 @@ def _common_arguments(parser: argparse.ArgumentParser) -> None:
         "--no-front-back",
         action="store_true",
         help="run without the front/back classifier (model.front_back false), to measure its cost",
+    )
+    parser.add_argument(
+        "--no-mirror-average",
+        action="store_true",
+        help="run each crop once, not also mirrored (model.mirror_average false), to measure what "
+        "the averaging costs",
     )
 
 
