@@ -22,6 +22,9 @@ class TrackerConfig:
     Attributes
     ----------
     accel_std_mps2 : standard deviation of the white acceleration of the position model (m/s^2).
+        2 (was 4), chosen with the pipeline's ``keypoint_sigma_px`` 3 on the tuning seeds: a
+        steadier range for a small drone whose keypoints are noisy, at the price of some lag on a
+        drone that turns hard (docs/evaluation.md, tenth session).
     angular_accel_std_radps2 : the same for the orientation model (rad/s^2).
     initial_velocity_std_mps : prior standard deviation of a new track's velocity (m/s).
     initial_angular_velocity_std_radps : the same for its angular velocity (rad/s).
@@ -98,7 +101,7 @@ class TrackerConfig:
         drone, the Tab. I sequences) would be read the wrong way round.
     """
 
-    accel_std_mps2: float = 4.0
+    accel_std_mps2: float = 2.0
     angular_accel_std_radps2: float = 8.0
     initial_velocity_std_mps: float = 3.0
     initial_angular_velocity_std_radps: float = 2.0
