@@ -23,6 +23,7 @@ import time
 from pathlib import Path
 
 import av
+import cv2
 import numpy as np
 import pytest
 from daemon_media import encode_clip, free_port, write_untrained_model
@@ -281,3 +282,11 @@ def test_same_tracks_reach_all_outputs(tmp_path, dialect):
         x, y, z = track["position_m"]
         assert message.id == track["track_id"] & 0xFF
         np.testing.assert_allclose([message.x, message.y, message.z], [z, x, y], rtol=1e-5, atol=1e-4)  # FRD
+    # The pipeline got the decoder's YUV planes; the MCAP sink converted the frames it kept itself.
+    assert mcap["/camera/image"]
+    with av.open(str(clip)) as container:
+        source = [f.to_ndarray(format="bgr24").astype(int) for f in container.decode(video=0)]
+    for image in mcap["/camera/image"][:3]:
+        kept = cv2.imdecode(np.frombuffer(image.data, np.uint8), cv2.IMREAD_COLOR)
+        assert kept.shape == source[0].shape
+        assert min(np.abs(kept - frame).mean() for frame in source) < 4  # one of the frames, in colour
