@@ -21,7 +21,7 @@ from abc import ABC, abstractmethod
 import cv2
 import numpy as np
 
-__all__ = ["BgrImage", "FrameImage", "I420Image", "as_frame_image"]
+__all__ = ["BgrImage", "FrameImage", "I420Image", "as_frame_image", "downscaled_bgr", "region_bgr"]
 
 
 class FrameImage(ABC):
@@ -69,10 +69,10 @@ class BgrImage(FrameImage):
         return self._bgr
 
     def region_bgr(self, x0: int, y0: int, x1: int, y1: int) -> np.ndarray:
-        return self._bgr[y0:y1, x0:x1]
+        return region_bgr(self._bgr, x0, y0, x1, y1)
 
     def downscaled_bgr(self, width: int, height: int) -> np.ndarray:
-        return cv2.resize(self._bgr, (width, height), interpolation=cv2.INTER_AREA)
+        return downscaled_bgr(self._bgr, width, height)
 
 
 class I420Image(FrameImage):
@@ -120,7 +120,7 @@ class I420Image(FrameImage):
 
     def downscaled_bgr(self, width: int, height: int) -> np.ndarray:
         if self._bgr is not None or width % 2 or height % 2:
-            return cv2.resize(self.bgr(), (width, height), interpolation=cv2.INTER_AREA)
+            return downscaled_bgr(self.bgr(), width, height)
         half = (width // 2, height // 2)
         return _i420_to_bgr(
             cv2.resize(self.luma, (width, height), interpolation=cv2.INTER_AREA),
@@ -142,3 +142,18 @@ def as_frame_image(image: FrameImage | np.ndarray) -> FrameImage:
     if isinstance(image, FrameImage):
         return image
     return BgrImage(image)
+
+
+def region_bgr(image: FrameImage | np.ndarray, x0: int, y0: int, x1: int, y1: int) -> np.ndarray:
+    """``image.region_bgr`` for a ``FrameImage``, the slice ``[y0:y1, x0:x1]`` of an array (any
+    dtype or channels: the training and evaluation code crops arrays)."""
+    if isinstance(image, FrameImage):
+        return image.region_bgr(x0, y0, x1, y1)
+    return image[y0:y1, x0:x1]
+
+
+def downscaled_bgr(image: FrameImage | np.ndarray, width: int, height: int) -> np.ndarray:
+    """``image.downscaled_bgr`` for a ``FrameImage``, area averaging for an array (any dtype)."""
+    if isinstance(image, FrameImage):
+        return image.downscaled_bgr(width, height)
+    return cv2.resize(image, (width, height), interpolation=cv2.INTER_AREA)

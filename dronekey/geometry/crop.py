@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from dronekey.frame_image import FrameImage
+from dronekey.frame_image import FrameImage, region_bgr
 
 __all__ = ["CropPolicy", "crop_square", "from_normalised", "roi_around_box", "to_normalised"]
 
@@ -87,7 +87,7 @@ def crop_square(image: np.ndarray | FrameImage, roi: ROI, out_size: int) -> np.n
     if xa >= xb or ya >= yb:
         dtype = np.uint8 if isinstance(image, FrameImage) else image.dtype
         return np.zeros((out_size, out_size, *image.shape[2:]), dtype=dtype)
-    patch = image.region_bgr(xa, ya, xb, yb) if isinstance(image, FrameImage) else image[ya:yb, xa:xb]
+    patch = region_bgr(image, xa, ya, xb, yb)
     if (xa, ya, xb, yb) != (x0, y0, x0 + side, y0 + side):
         patch = cv2.copyMakeBorder(
             patch, ya - y0, y0 + side - yb, xa - x0, x0 + side - xb, cv2.BORDER_CONSTANT, value=0

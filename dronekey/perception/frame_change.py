@@ -25,7 +25,7 @@ import math
 
 import numpy as np
 
-from dronekey.frame_image import FrameImage
+from dronekey.frame_image import FrameImage, region_bgr
 
 __all__ = ["BOX_GROWTH", "HUB_HALF_SIDE", "MAX_SAMPLES_PER_SIDE", "RING_GROWTH", "frame_change"]
 
@@ -76,8 +76,8 @@ def frame_change(
     if c1 - c0 < 3 or r1 - r0 < 3:
         return math.nan
     step = max(1, math.ceil(max(o1 - o0, q1 - q0) / MAX_SAMPLES_PER_SIDE))
-    a = _region_bgr(current, o0, q0, o1, q1)[::step, ::step].astype(np.int16)
-    b = _region_bgr(previous, o0, q0, o1, q1)[::step, ::step].astype(np.int16)
+    a = region_bgr(current, o0, q0, o1, q1)[::step, ::step].astype(np.int16)
+    b = region_bgr(previous, o0, q0, o1, q1)[::step, ::step].astype(np.int16)
     change = np.abs(a - b).max(axis=2)
     rows = np.arange(q0, q1, step)[:, None]
     cols = np.arange(o0, o1, step)[None, :]
@@ -90,7 +90,3 @@ def frame_change(
     if box.size == 0 or ring.size == 0:
         return math.nan
     return float(np.percentile(box, 95) - np.percentile(ring, 95))
-
-
-def _region_bgr(image: np.ndarray | FrameImage, x0: int, y0: int, x1: int, y1: int) -> np.ndarray:
-    return image.region_bgr(x0, y0, x1, y1) if isinstance(image, FrameImage) else image[y0:y1, x0:x1]

@@ -163,19 +163,22 @@ class KeypointReading(NamedTuple):
     crops : (B, S, S, 3) uint8 BGR, the network's input.
     raw : the network's outputs (mirror-averaged when the model averages), or None when B = 0.
     rois : the crops' (x0, y0, side), full-frame pixels.
-    presence : (B,) float32, the network's presence per crop.
     """
 
     crops: np.ndarray
     raw: RawOutputs | None
     rois: list[ROI]
-    presence: np.ndarray
+
+    @property
+    def presence(self) -> np.ndarray:
+        """(B,) float32, the network's presence per crop."""
+        return self.raw.presence if self.raw is not None else np.zeros(0, np.float32)
 
     def subset(self, select: Sequence[int]) -> KeypointReading:
         """The reading of crops ``select`` only, in that order."""
         idx = np.asarray(select, dtype=np.intp)
         raw = RawOutputs(*(None if a is None else a[idx] for a in self.raw)) if len(idx) else None
-        return KeypointReading(self.crops[idx], raw, [self.rois[i] for i in idx], self.presence[idx])
+        return KeypointReading(self.crops[idx], raw, [self.rois[i] for i in idx])
 
 
 def mirror_averaged(raw: RawOutputs, n: int) -> RawOutputs:
@@ -408,14 +411,14 @@ class KeypointModel:
         rois = [tuple(int(v) for v in roi) for roi in rois]
         if not rois:
             s = self.input_size
-            return KeypointReading(np.zeros((0, s, s, 3), np.uint8), None, [], np.zeros(0, np.float32))
+            return KeypointReading(np.zeros((0, s, s, 3), np.uint8), None, [])
         crops = np.stack([crop_square(frame, roi, self.input_size) for roi in rois])
         if not self.mirror_average:
             raw = self.inference(self.preprocess(crops))
         else:
             tensor = self.preprocess(crops)  # the mirrors are flipped after normalising: half the work
             raw = mirror_averaged(self.inference(np.concatenate([tensor, tensor[..., ::-1]])), len(rois))
-        return KeypointReading(crops, raw, rois, raw.presence)
+        return KeypointReading(crops, raw, rois)
 
     def rough(self, reading: KeypointReading) -> list[KeypointDetection]:
         """A reading's detections before the patch classifiers: the keypoints in the network's own

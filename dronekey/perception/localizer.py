@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from dronekey.frame_image import FrameImage
+from dronekey.frame_image import FrameImage, downscaled_bgr
 from dronekey.geometry.camera import CameraModel
 from dronekey.geometry.crop import CropPolicy, roi_around_box
 from dronekey.geometry.drone_spec import DroneSpec
@@ -309,11 +309,7 @@ def saliency_pass(
     h, w = frame.shape[:2]
     cfg = config
     scale = min(1.0, cfg.work_width / w)
-    size = (round(w * scale), round(h * scale))
-    if isinstance(frame, FrameImage):
-        small = frame.downscaled_bgr(*size).astype(np.float32)
-    else:
-        small = cv2.resize(frame, size, interpolation=cv2.INTER_AREA).astype(np.float32)
+    small = downscaled_bgr(frame, round(w * scale), round(h * scale)).astype(np.float32)
     background = cv2.GaussianBlur(small, (0, 0), cfg.background_sigma)
     maps = [_max_abs_difference(small, background)]
     if cfg.use_motion and previous_small is not None and previous_small.shape == small.shape:
