@@ -44,6 +44,8 @@ METRICS = {
     "confident_wrong_heading_pct",
     "wrong_heading_frames",
     "wrong_heading_pct",
+    "confident_right_heading_frames",
+    "confident_right_heading_pct",
 }
 
 ENTRY_KEYS = {"name", "seed", "style_seed", "leds", "background", "range_scale", "far", "no_drone", "reused"}
@@ -115,7 +117,7 @@ def test_match_gate():
     assert match_gate_m(np.array([0.0, 6.0, 8.0])) == pytest.approx(2.5)
 
 
-def _scores(false, detected=(), wrong=(), confident=(), dt=()):
+def _scores(false, detected=(), wrong=(), confident=(), dt=(), sure_right=None):
     n = len(detected)
     R = np.repeat(np.eye(3)[None], n, axis=0)
     t_true = np.tile([0.0, 0.0, 4.0], (n, 1))
@@ -131,6 +133,7 @@ def _scores(false, detected=(), wrong=(), confident=(), dt=()):
         t_true=t_true,
         wrong_heading=np.asarray(wrong, bool).reshape(n),
         confident_wrong_heading=np.asarray(confident, bool).reshape(n),
+        confident_right_heading=np.asarray(sure_right if sure_right is not None else [False] * n, bool),
         kp_pred=np.zeros((n, 4, 2)),
         kp_true=np.zeros((n, 4, 2)),
         area=np.ones(n),
@@ -141,7 +144,8 @@ def _scores(false, detected=(), wrong=(), confident=(), dt=()):
 
 def test_summarise_pools_frames():
     a = _scores([False, True], [True, False], [True, False], [False, False], [[0.3, 0, 0], [0, 0, 0]])
-    b = _scores([False, False], [True, True], [False, False], [False, False], [[0, 0.1, 0], [0, 0.1, 0]])
+    dt = [[0, 0.1, 0], [0, 0.1, 0]]
+    b = _scores([False, False], [True, True], [False, False], [False, False], dt, sure_right=[True, False])
     free = _scores([True, False, False, True])
     s = summarise([a, b, free])
     assert s["sequences"] == 3 and s["frames"] == 8
@@ -152,6 +156,7 @@ def test_summarise_pools_frames():
     assert s["false_track_ids"] == 2
     assert s["wrong_heading_frames"] == 1 and s["wrong_heading_pct"] == 25.0
     assert s["confident_wrong_heading_frames"] == 0
+    assert s["confident_right_heading_frames"] == 1 and s["confident_right_heading_pct"] == 25.0
     only_free = summarise([free])
     assert only_free["false_tracks_per_1000_frames"] == 500.0 and only_free["mae_angle_deg"] is None
     assert set(only_free) == METRICS

@@ -49,6 +49,7 @@ _COLUMNS = (
     ("false", "ids", "false_track_ids", "{:d}"),
     ("conf>90", "%", "confident_wrong_heading_pct", "{:.2f}"),
     ("any>90", "%", "wrong_heading_pct", "{:.2f}"),
+    ("sure ok", "%", "confident_right_heading_pct", "{:.1f}"),
 )
 
 

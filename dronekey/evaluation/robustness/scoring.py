@@ -80,7 +80,8 @@ class SequenceScores:
         NaN where not detected. R_true, t_true : the ground truth.
     wrong_heading : (N,) the drone's track is more than ``WRONG_HEADING_DEG`` off (geodesic angle).
     confident_wrong_heading : (N,) ``wrong_heading`` while the track's ``heading_confidence`` >=
-        ``CONFIDENT_HEADING``.
+        ``CONFIDENT_HEADING``. confident_right_heading : (N,) a drone's track within
+        ``WRONG_HEADING_DEG`` with that confidence: what the doubt costs.
     kp_pred, kp_true : (N, 4, 2) the pipeline's best detection and the annotated keypoints, pixels.
     area : (N,) annotated box area, pixels^2. score : (N,) presence of the detection (0 without).
     has_pred : (N,) a detection exists.
@@ -97,6 +98,7 @@ class SequenceScores:
     t_true: np.ndarray
     wrong_heading: np.ndarray
     confident_wrong_heading: np.ndarray
+    confident_right_heading: np.ndarray
     kp_pred: np.ndarray
     kp_true: np.ndarray
     area: np.ndarray
@@ -155,6 +157,7 @@ def score_sequence(
             "t_true",
             "wrong",
             "confident_wrong",
+            "confident_right",
             "kp_pred",
             "kp_true",
             "area",
@@ -191,13 +194,16 @@ def score_sequence(
         if best is not None:
             R = quat_wxyz_to_matrix(best.quaternion_wxyz)
             off = geodesic_angle_deg(R, ann.rotation) > WRONG_HEADING_DEG
+            sure = bool(best.heading_confidence >= CONFIDENT_HEADING)
             rows["wrong"].append(off)
-            rows["confident_wrong"].append(off and bool(best.heading_confidence >= CONFIDENT_HEADING))
+            rows["confident_wrong"].append(off and sure)
+            rows["confident_right"].append(not off and sure)
             rows["R_track"].append(R)
             rows["t_track"].append(best.position_m)
         else:
             rows["wrong"].append(False)
             rows["confident_wrong"].append(False)
+            rows["confident_right"].append(False)
             rows["R_track"].append(np.full((3, 3), np.nan))
             rows["t_track"].append(np.full(3, np.nan))
         det = out.detection
@@ -217,6 +223,7 @@ def score_sequence(
         t_true=_stack(rows["t_true"], (3,)),
         wrong_heading=_stack(rows["wrong"], (), bool),
         confident_wrong_heading=_stack(rows["confident_wrong"], (), bool),
+        confident_right_heading=_stack(rows["confident_right"], (), bool),
         kp_pred=_stack(rows["kp_pred"], (4, 2)),
         kp_true=_stack(rows["kp_true"], (4, 2)),
         area=_stack(rows["area"], ()),

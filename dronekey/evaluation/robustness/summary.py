@@ -13,7 +13,8 @@ Per sequence and per group (a frame-weighted average over the scored frames, ``s
   number of distinct track ids that were ever such a track;
 - confident wrong heading %: annotated frames whose drone's track has a wrong heading with
   confidence, percent of the annotated frames; ``wrong_heading_pct`` is the same share at any
-  confidence.
+  confidence; ``confident_right_heading_pct`` the share whose track is right and says so (what the
+  pipeline's doubt costs: never being sure would make the confident-wrong share 0).
 """
 
 from __future__ import annotations
@@ -41,8 +42,9 @@ def summarise(scores: Sequence[SequenceScores]) -> dict:
     dict with ``sequences``, ``frames`` (scored), ``detected_frames``, ``detected_pct``,
     ``mae_angle_deg``, ``rmse_m``, ``mae_abs_m``, ``mae_angle_up_to_twin_deg``, ``ap_kp``
     (percent), ``false_track_frames``, ``false_tracks_per_1000_frames``, ``false_track_ids``,
-    ``confident_wrong_heading_frames``, ``confident_wrong_heading_pct``, ``wrong_heading_frames``
-    and ``wrong_heading_pct`` (any confidence); figures that need a drone sequence are None without
+    ``confident_wrong_heading_frames``, ``confident_wrong_heading_pct``, ``wrong_heading_frames``,
+    ``wrong_heading_pct`` (any confidence), ``confident_right_heading_frames`` and
+    ``confident_right_heading_pct``; figures that need a drone sequence are None without
     one, and a figure with no frame to average is None.
     """
     frames = sum(s.frames for s in scores)
@@ -68,6 +70,8 @@ def summarise(scores: Sequence[SequenceScores]) -> dict:
         "confident_wrong_heading_pct": None,
         "wrong_heading_frames": None,
         "wrong_heading_pct": None,
+        "confident_right_heading_frames": None,
+        "confident_right_heading_pct": None,
     }
     if not n_ann:
         return out
@@ -80,6 +84,7 @@ def summarise(scores: Sequence[SequenceScores]) -> dict:
     ap = ap_kp(cat("kp_pred"), cat("kp_true"), cat("area"), cat("score"), has_pred=cat("has_pred"))
     wrong = int(cat("wrong_heading").sum())
     confident_wrong = int(cat("confident_wrong_heading").sum())
+    confident_right = int(cat("confident_right_heading").sum())
     out.update(
         detected_frames=int(hit.sum()),
         detected_pct=rounded(_pct(int(hit.sum()), n_ann), 2),
@@ -92,5 +97,7 @@ def summarise(scores: Sequence[SequenceScores]) -> dict:
         confident_wrong_heading_pct=rounded(_pct(confident_wrong, n_ann), 2),
         wrong_heading_frames=wrong,
         wrong_heading_pct=rounded(_pct(wrong, n_ann), 2),
+        confident_right_heading_frames=confident_right,
+        confident_right_heading_pct=rounded(_pct(confident_right, n_ann), 2),
     )
     return out
