@@ -63,11 +63,11 @@ def update_heading(
         heading_p = 1.0 - heading_p
     track.add_heading_evidence(heading_p, cfg.heading_evidence_weight)
     if cfg.heading_from_motion > 0:
-        track.add_heading_evidence(_nose_first_p(R_track, track.position.velocity_mps, cfg), 1.0)
+        track.add_heading_evidence(_nose_first_p(R_track, track.position.velocity_mps, cfg), 1.0, look=False)
     if track.heading_log_odds is not None and track.heading_log_odds < -cfg.heading_switch_log_odds:
         log.info("track %d: turned around (front/back log-odds %.1f)", track.track_id, track.heading_log_odds)
         track.reinitialise_orientation(twin_of(R_track), m.covariance[3:, 3:], cfg)
-        track.heading_log_odds = -track.heading_log_odds
+        track.turn_heading_around()
         m = twin_measurement(m)
     return m, heading_p
 

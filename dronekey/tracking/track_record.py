@@ -84,25 +84,60 @@ class TrackRecord:
         self.evidence: deque[HitEvidence] = deque(maxlen=config.confirm_window)  # its latest hits
         self.evidence.append(hit._replace(range_m=float(np.linalg.norm(measurement.t))))
         self.heading_log_odds: float | None = None  # None: no front/back evidence yet (NaN inputs)
+        # The look's mean log-odds for the followed front, over the last frames (None: not averaged),
+        # and the flight's accumulated log-odds (heading_from_motion), which that mean does not hold
+        self.heading_look_log_odds: float | None = None
+        self.heading_motion_log_odds = 0.0
         self.heading_cap = config.heading_confidence_cap
+        self.heading_look_rate = 1.0 / config.heading_look_frames if config.heading_look_frames > 0 else 0.0
 
-    def add_heading_evidence(self, heading_p: float, weight: float) -> None:
-        """Fold one measurement's probability that its front (turned to this track's) is right."""
+    def add_heading_evidence(self, heading_p: float, weight: float, look: bool = True) -> None:
+        """Fold one measurement's probability that its front (turned to this track's) is right;
+        ``look`` says it is the front/back classifier's (averaged into ``heading_look_log_odds``),
+        not the flight's."""
         if not math.isfinite(heading_p):
             return
         p = min(max(heading_p, 0.02), 0.98)
+        evidence = math.log(p / (1 - p))
         prior = self.heading_log_odds or 0.0
-        value = prior + weight * math.log(p / (1 - p))
+        value = prior + weight * evidence
         self.heading_log_odds = max(-self.heading_cap, min(self.heading_cap, value))
+        if not look:
+            motion = self.heading_motion_log_odds + weight * evidence
+            self.heading_motion_log_odds = max(-self.heading_cap, min(self.heading_cap, motion))
+        elif self.heading_look_rate > 0:
+            mean = self.heading_look_log_odds
+            self.heading_look_log_odds = (
+                evidence if mean is None else mean + self.heading_look_rate * (evidence - mean)
+            )
+
+    def turn_heading_around(self) -> None:
+        """The followed front becomes the back: every log-odds for it changes sign."""
+        if self.heading_log_odds is not None:
+            self.heading_log_odds = -self.heading_log_odds
+        if self.heading_look_log_odds is not None:
+            self.heading_look_log_odds = -self.heading_look_log_odds
+        self.heading_motion_log_odds = -self.heading_motion_log_odds
+
+    @property
+    def published_heading_log_odds(self) -> float | None:
+        """The log-odds the outputs are told: the accumulated ones, but never more than the look's
+        recent mean (plus the flight's evidence) says. A drone seen from one side for a long time
+        gives the same answer on every frame, right or wrong, so the length of the run must not turn
+        a weak answer into a sure one (docs/pose-and-tracking.md, "Front or back")."""
+        if self.heading_log_odds is None or self.heading_look_log_odds is None:
+            return self.heading_log_odds
+        return min(self.heading_log_odds, self.heading_look_log_odds + self.heading_motion_log_odds)
 
     @property
     def heading_confidence(self) -> float:
-        if self.heading_log_odds is None:
+        log_odds = self.published_heading_log_odds
+        if log_odds is None:
             return float("nan")
         # 2p - 1 with p = sigmoid(L), the probability that the published front is right. Below 0
         # (L < 0, inside the turn-around hysteresis) the published front is more likely wrong than
         # right: no confidence in it at all, 0, not a negative figure outputs would have to refuse.
-        return max(0.0, math.tanh(self.heading_log_odds / 2))
+        return max(0.0, math.tanh(log_odds / 2))
 
     def predict_to(self, t_ns: int) -> None:
         dt = (t_ns - self.t_ns) / NS_PER_S
@@ -125,8 +160,9 @@ class TrackRecord:
         """Orientation covariance in the camera frame, with the front/back doubt about the body's
         vertical axis (the two-point mixture's variance q (1 - q) pi^2)."""
         cov = np.array(self.orientation.rotation_cov_cam, dtype=np.float64)
-        if self.heading_log_odds is not None:
-            q = 1.0 / (1.0 + math.exp(-self.heading_log_odds))
+        log_odds = self.published_heading_log_odds
+        if log_odds is not None:
+            q = 1.0 / (1.0 + math.exp(-log_odds))
             axis = self.orientation.rotation[:, 2]  # body z (down) in the camera frame
             cov = cov + q * (1 - q) * math.pi**2 * np.outer(axis, axis)
         return cov

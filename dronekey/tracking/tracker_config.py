@@ -10,7 +10,13 @@ import numpy as np
 __all__ = ["TrackerConfig"]
 
 _MAY_BE_ZERO = frozenset(
-    {"confirm_min_change", "confirm_drone_p", "heading_from_motion", "keypoint_overlap_weight"}
+    {
+        "confirm_min_change",
+        "confirm_drone_p",
+        "heading_from_motion",
+        "heading_look_frames",
+        "keypoint_overlap_weight",
+    }
 )
 
 
@@ -94,6 +100,9 @@ class TrackerConfig:
         MAE-angle 18.1 / 17.6 / 15.3 / 15.2 / 15.3 deg; docs/evaluation.md).
     heading_switch_log_odds : log-odds against the followed front at which a track turns around.
     heading_confidence_cap : the most log-odds a track can gather either way (7: about 1000 to 1).
+    heading_look_frames : time constant, frames, of the running mean of the front/back classifier's
+        per-frame log-odds; the published confidence never exceeds what that mean says (0: off, the
+        accumulated log-odds are published).
     heading_from_motion : log-odds per frame given to "the nose points where the drone flies"
         (multirotors mostly fly nose-first): ``w cos(nose, horizontal velocity) min(1, speed / 2
         m/s)``, the horizontal plane taken as the one normal to the drone's own vertical axis. 0
@@ -127,6 +136,7 @@ class TrackerConfig:
     heading_evidence_weight: float = 0.05
     heading_switch_log_odds: float = 1.5
     heading_confidence_cap: float = 7.0
+    heading_look_frames: float = 30.0
     heading_from_motion: float = 0.0
 
     def __post_init__(self) -> None:

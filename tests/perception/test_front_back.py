@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 
 from dronekey.geometry.rotations import geodesic_angle_deg, quat_wxyz_to_matrix
 from dronekey.perception.keypoint_model import (
@@ -93,7 +94,9 @@ def test_confident_evidence_builds_up_and_a_flipped_track_turns_around():
     tracks = run(tracker, R_true, 30, 0.95, start=1)
     (track,) = tracks
     assert geodesic_angle_deg(quat_wxyz_to_matrix(track.quaternion_wxyz), R_true) < 3.0
-    assert track.heading_confidence > 0.9
+    assert track.heading_confidence > 0.6  # the look's mean is still catching up with 0.95
+    (track,) = run(tracker, R_true, 60, 0.95, start=31)
+    assert track.heading_confidence > 0.85  # tanh(logit(0.95) / 2) = 0.9 at most
 
 
 def test_without_a_front_back_head_the_confidence_is_unknown_and_the_order_is_kept():
@@ -145,3 +148,27 @@ def test_a_front_more_likely_wrong_than_right_has_no_confidence_never_a_negative
     # evidence against the track's front, too weak to turn it around (the switch hysteresis)
     (track,) = run(tracker, R, 3, 0.4)  # log-odds 3 x 0.3 x log(0.4 / 0.6) = -0.36: tanh would be -0.18
     assert track.heading_confidence == 0.0
+
+
+def test_a_long_run_of_weak_answers_is_not_published_as_a_sure_front():
+    """One drone seen from one side answers alike on every frame, right or wrong: 150 frames of
+    p = 0.7 pile up log-odds, but the published confidence stays what one frame of 0.7 says."""
+    R = seen_from_below(15.0)
+    one_frame = math.tanh(math.log(0.7 / 0.3) / 2)  # 0.4
+    piled, averaged = (run(Tracker(TrackerConfig(heading_look_frames=n)), R, 150, 0.7)[0] for n in (0, 30))
+    assert piled.heading_confidence > 0.95  # the accumulated log-odds alone
+    assert averaged.heading_confidence == pytest.approx(one_frame, abs=1e-6)
+    assert geodesic_angle_deg(quat_wxyz_to_matrix(averaged.quaternion_wxyz), R) < 2.0  # same front followed
+    # Strong, steady answers still make a sure track.
+    (sure,) = run(Tracker(TrackerConfig(heading_look_frames=30)), R, 60, 0.97)
+    assert sure.heading_confidence > 0.9
+
+
+def test_turning_around_turns_the_looks_mean_too():
+    tracker = Tracker(TrackerConfig(heading_look_frames=30))
+    R_true = seen_from_below(-60.0)
+    # Born on the twin with a strong wrong answer, then steadily right: it turns, and ends sure.
+    tracker.update(t_ns(0), [twin_measurement(measurement(R_true, [0.2, -0.5, 5.0]))], [0.99], None, [0.9])
+    (track,) = run(tracker, R_true, 120, 0.97, start=1)
+    assert geodesic_angle_deg(quat_wxyz_to_matrix(track.quaternion_wxyz), R_true) < 3.0
+    assert track.heading_confidence > 0.9
