@@ -79,9 +79,8 @@ class SequenceScores:
     R_track, t_track : (N, 3, 3), (N, 3) the drone's track (body -> camera, camera-frame metres);
         NaN where not detected. R_true, t_true : the ground truth.
     wrong_heading : (N,) the drone's track is more than ``WRONG_HEADING_DEG`` off (geodesic angle).
-    confident_wrong_heading : (N,) ``wrong_heading`` while the track's ``heading_confidence`` >=
-        ``CONFIDENT_HEADING``. confident_right_heading : (N,) a drone's track within
-        ``WRONG_HEADING_DEG`` with that confidence: what the doubt costs.
+    sure_heading : (N,) the drone's track has a ``heading_confidence`` >= ``CONFIDENT_HEADING``
+        (``confident_wrong_heading`` and ``confident_right_heading`` follow from it).
     kp_pred, kp_true : (N, 4, 2) the pipeline's best detection and the annotated keypoints, pixels.
     area : (N,) annotated box area, pixels^2. score : (N,) presence of the detection (0 without).
     has_pred : (N,) a detection exists.
@@ -97,14 +96,23 @@ class SequenceScores:
     R_true: np.ndarray
     t_true: np.ndarray
     wrong_heading: np.ndarray
-    confident_wrong_heading: np.ndarray
-    confident_right_heading: np.ndarray
+    sure_heading: np.ndarray
     kp_pred: np.ndarray
     kp_true: np.ndarray
     area: np.ndarray
     score: np.ndarray
     has_pred: np.ndarray
     fps: float = float("nan")
+
+    @property
+    def confident_wrong_heading(self) -> np.ndarray:
+        """(N,) a wrong heading stated with confidence."""
+        return self.wrong_heading & self.sure_heading
+
+    @property
+    def confident_right_heading(self) -> np.ndarray:
+        """(N,) a drone's track within ``WRONG_HEADING_DEG`` that says so: what the doubt costs."""
+        return self.detected & ~self.wrong_heading & self.sure_heading
 
     @property
     def frames(self) -> int:
@@ -156,8 +164,7 @@ def score_sequence(
             "R_true",
             "t_true",
             "wrong",
-            "confident_wrong",
-            "confident_right",
+            "sure",
             "kp_pred",
             "kp_true",
             "area",
@@ -193,17 +200,13 @@ def score_sequence(
         rows["t_true"].append(ann.translation)
         if best is not None:
             R = quat_wxyz_to_matrix(best.quaternion_wxyz)
-            off = geodesic_angle_deg(R, ann.rotation) > WRONG_HEADING_DEG
-            sure = bool(best.heading_confidence >= CONFIDENT_HEADING)
-            rows["wrong"].append(off)
-            rows["confident_wrong"].append(off and sure)
-            rows["confident_right"].append(not off and sure)
+            rows["wrong"].append(geodesic_angle_deg(R, ann.rotation) > WRONG_HEADING_DEG)
+            rows["sure"].append(bool(best.heading_confidence >= CONFIDENT_HEADING))
             rows["R_track"].append(R)
             rows["t_track"].append(best.position_m)
         else:
             rows["wrong"].append(False)
-            rows["confident_wrong"].append(False)
-            rows["confident_right"].append(False)
+            rows["sure"].append(False)
             rows["R_track"].append(np.full((3, 3), np.nan))
             rows["t_track"].append(np.full(3, np.nan))
         det = out.detection
@@ -222,8 +225,7 @@ def score_sequence(
         R_true=_stack(rows["R_true"], (3, 3)),
         t_true=_stack(rows["t_true"], (3,)),
         wrong_heading=_stack(rows["wrong"], (), bool),
-        confident_wrong_heading=_stack(rows["confident_wrong"], (), bool),
-        confident_right_heading=_stack(rows["confident_right"], (), bool),
+        sure_heading=_stack(rows["sure"], (), bool),
         kp_pred=_stack(rows["kp_pred"], (4, 2)),
         kp_true=_stack(rows["kp_true"], (4, 2)),
         area=_stack(rows["area"], ()),

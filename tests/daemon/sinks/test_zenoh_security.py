@@ -336,17 +336,17 @@ DEFAULT_SESSION = textwrap.dedent(
     sink = ZenohSink(DaemonConfig().zenoh, "cam0")
     assert sink.wait_open(10), sink.health()
 
-    def sockets():
+    def listed():
         return [
             [c.type.name, c.laddr.ip, c.laddr.port, c.status]
             for c in psutil.Process().net_connections(kind="inet")
         ]
 
     deadline = time.monotonic() + 10  # on a loaded box the listener may bind after the session opens
-    while not any(s[3] == "LISTEN" for s in sockets()) and time.monotonic() < deadline:
+    while not any(s[3] == "LISTEN" for s in listed()) and time.monotonic() < deadline:
         time.sleep(0.05)
     time.sleep(0.5)  # scouting, were it on, has opened its sockets by now
-    sockets = sockets()
+    sockets = listed()
     sink.close()
     print(json.dumps(sockets))
     """
