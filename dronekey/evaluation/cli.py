@@ -252,8 +252,10 @@ seeds: reporting scene seeds 7001+ (drone-free 7501+), tuning seeds 6001+ (drone
 metrics per row (frames pooled): MAE-angle (deg), RMSE (m), MAE-absolute (m) of the drone's track
   (the best published track within max(0.5 m, 25 % of the range) of the truth), detected % (frames
   with such a track), AP^kp of the pipeline's detections (%), frames with a false track (a
-  published track that is not the drone's) per 1,000 frames and their distinct ids, and wrong
-  heading % (the drone's track > 90 deg off while heading_confidence >= 0.5).
+  published track that is not the drone's) per 1,000 frames and their distinct ids, the same for
+  false tracks off the drone's line of sight (off-sight: clutter, or a track that coasted away;
+  the rest is the drone read at a wrong range), and wrong heading % (the drone's track > 90 deg
+  off while heading_confidence >= 0.5).
 """
 
 

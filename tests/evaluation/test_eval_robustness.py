@@ -11,7 +11,12 @@ import pytest
 from dronekey.evaluation.cli import main
 from dronekey.evaluation.robustness import matrix as matrix
 from dronekey.evaluation.robustness.run import run_robustness
-from dronekey.evaluation.robustness.scoring import WRONG_HEADING_DEG, SequenceScores, match_gate_m
+from dronekey.evaluation.robustness.scoring import (
+    WRONG_HEADING_DEG,
+    SequenceScores,
+    match_gate_m,
+    on_line_of_sight,
+)
 from dronekey.evaluation.robustness.seed_sets import check_seeds
 from dronekey.evaluation.robustness.summary import summarise
 from dronekey.geometry.rotations import rotation_from_euler_deg
@@ -40,6 +45,9 @@ METRICS = {
     "false_track_frames",
     "false_tracks_per_1000_frames",
     "false_track_ids",
+    "off_sight_track_frames",
+    "off_sight_tracks_per_1000_frames",
+    "off_sight_track_ids",
     "confident_wrong_heading_frames",
     "confident_wrong_heading_pct",
     "wrong_heading_frames",
@@ -117,7 +125,7 @@ def test_match_gate():
     assert match_gate_m(np.array([0.0, 6.0, 8.0])) == pytest.approx(2.5)
 
 
-def _scores(false, detected=(), wrong=(), confident=(), dt=(), sure_right=None):
+def _scores(false, detected=(), wrong=(), confident=(), dt=(), sure_right=None, off_sight=None):
     n = len(detected)
     R = np.repeat(np.eye(3)[None], n, axis=0)
     t_true = np.tile([0.0, 0.0, 4.0], (n, 1))
@@ -126,6 +134,8 @@ def _scores(false, detected=(), wrong=(), confident=(), dt=(), sure_right=None):
         no_drone=n == 0,
         false_frame=np.asarray(false, bool),
         false_ids=int(any(false)),
+        off_sight_frame=np.asarray(false if off_sight is None else off_sight, bool),
+        off_sight_ids=int(any(false if off_sight is None else off_sight)),
         detected=np.asarray(detected, bool),
         R_track=R,
         t_track=t_track,
@@ -142,7 +152,8 @@ def _scores(false, detected=(), wrong=(), confident=(), dt=(), sure_right=None):
 
 
 def test_summarise_pools_frames():
-    a = _scores([False, True], [True, False], [True, False], [False, False], [[0.3, 0, 0], [0, 0, 0]])
+    dt_a = [[0.3, 0, 0], [0, 0, 0]]
+    a = _scores([False, True], [True, False], [True, False], [False, False], dt_a, off_sight=[0, 0])
     dt = [[0, 0.1, 0], [0, 0.1, 0]]
     b = _scores([False, False], [True, True], [False, False], [False, False], dt, sure_right=[True, False])
     free = _scores([True, False, False, True])
@@ -153,12 +164,25 @@ def test_summarise_pools_frames():
     assert s["rmse_m"] == pytest.approx(np.sqrt((0.09 + 0.01 + 0.01) / 3), abs=1e-4)
     assert s["false_track_frames"] == 3 and s["false_tracks_per_1000_frames"] == 375.0
     assert s["false_track_ids"] == 2
+    # a's false frame is the drone at a wrong range, on its line of sight: only the drone-free
+    # frames count.
+    assert s["off_sight_track_frames"] == 2 and s["off_sight_tracks_per_1000_frames"] == 250.0
+    assert s["off_sight_track_ids"] == 1
     assert s["wrong_heading_frames"] == 1 and s["wrong_heading_pct"] == 25.0
     assert s["confident_wrong_heading_frames"] == 0
     assert s["confident_right_heading_frames"] == 1 and s["confident_right_heading_pct"] == 25.0
     only_free = summarise([free])
     assert only_free["false_tracks_per_1000_frames"] == 500.0 and only_free["mae_angle_deg"] is None
     assert set(only_free) == METRICS
+
+
+def test_line_of_sight_tells_the_drone_at_a_wrong_range_from_elsewhere():
+    # A Mini 2 (hubs 0.106 m + half a 0.119 m propeller) at 5 m subtends 1.9 deg of radius.
+    t_true, radius = np.array([0.0, 0.0, 5.0]), 0.166
+    assert on_line_of_sight(np.array([0.0, 0.0, 3.0]), t_true, radius)  # read 40 % short
+    assert on_line_of_sight(np.array([0.1, 0.0, 8.0]), t_true, radius)  # far, 0.7 deg off
+    assert not on_line_of_sight(np.array([1.0, 0.0, 5.0]), t_true, radius)  # 11 deg off: elsewhere
+    assert not on_line_of_sight(np.zeros(3), t_true, radius)
 
 
 def test_wrong_heading_is_a_geodesic_angle_over_90_deg():

@@ -47,6 +47,7 @@ _COLUMNS = (
     ("AP^kp", "%", "ap_kp", "{:.1f}"),
     ("false", "/1k fr", "false_tracks_per_1000_frames", "{:.1f}"),
     ("false", "ids", "false_track_ids", "{:d}"),
+    ("off-sight", "/1k fr", "off_sight_tracks_per_1000_frames", "{:.1f}"),
     ("conf>90", "%", "confident_wrong_heading_pct", "{:.2f}"),
     ("any>90", "%", "wrong_heading_pct", "{:.2f}"),
     ("sure ok", "%", "confident_right_heading_pct", "{:.1f}"),

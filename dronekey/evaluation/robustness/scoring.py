@@ -7,7 +7,11 @@ A fresh ``TrackingPipeline`` (unchanged) runs over every frame; per scored frame
   the range is the true distance from the camera), ranked as ``dronekey-eval pose`` ranks its
   estimate (confirmed before coasting, most hits, oldest id), and its pose against the truth;
 - a false track: a published track that is not the drone's (farther than the gate from the truth;
-  in a drone-free frame, any published track), and the ids of such tracks;
+  in a drone-free frame, any published track), and the ids of such tracks; and whether it is
+  **off the drone's line of sight** (clutter, or a track of the drone that coasted away from it):
+  its direction more than ``LINE_OF_SIGHT_FACTOR`` times the drone's angular radius from the true
+  direction, the radius being the spec's hub radius plus half a propeller at the true range. A
+  false track on the line of sight is the drone itself read at a wrong range;
 - a wrong heading: the drone's track more than ``WRONG_HEADING_DEG`` from the true attitude
   (geodesic angle of R_track^T R_true, so a front/back flip counts), and whether its
   ``heading_confidence`` was >= ``CONFIDENT_HEADING`` (a model without a front/back head gives NaN
@@ -36,6 +40,7 @@ from dronekey.types import PUBLISHED_STATUSES
 
 __all__ = [
     "CONFIDENT_HEADING",
+    "LINE_OF_SIGHT_FACTOR",
     "MATCH_GATE_FRACTION",
     "MATCH_GATE_M",
     "WRONG_HEADING_DEG",
@@ -48,6 +53,7 @@ MATCH_GATE_M = 0.5
 MATCH_GATE_FRACTION = 0.25
 WRONG_HEADING_DEG = 90.0
 CONFIDENT_HEADING = 0.5
+LINE_OF_SIGHT_FACTOR = 2.0
 
 
 def match_gate_m(t_true: np.ndarray) -> float:
@@ -64,6 +70,18 @@ def match_gate_m(t_true: np.ndarray) -> float:
     return max(MATCH_GATE_M, MATCH_GATE_FRACTION * float(np.linalg.norm(t_true)))
 
 
+def on_line_of_sight(t_track: np.ndarray, t_true: np.ndarray, drone_radius_m: float) -> bool:
+    """Whether a track lies in the drone's direction from the camera, whatever its range: the
+    angle between the two camera-frame positions at most ``LINE_OF_SIGHT_FACTOR`` times the drone's
+    angular radius ``atan(drone_radius_m / ||t_true||)``."""
+    a, b = np.asarray(t_track, dtype=np.float64), np.asarray(t_true, dtype=np.float64)
+    na, nb = float(np.linalg.norm(a)), float(np.linalg.norm(b))
+    if na <= 0.0 or nb <= 0.0:
+        return False
+    angle = float(np.arccos(np.clip(a @ b / (na * nb), -1.0, 1.0)))
+    return angle <= LINE_OF_SIGHT_FACTOR * float(np.arctan2(drone_radius_m, nb))
+
+
 def _stack(rows: list, shape: tuple[int, ...], dtype=np.float64) -> np.ndarray:
     return np.asarray(rows, dtype=dtype).reshape(len(rows), *shape)
 
@@ -75,6 +93,9 @@ class SequenceScores:
     no_drone : a drone-free sequence: only ``false_frame`` is filled, the other arrays are empty.
     false_frame : (N,) a published track that is not the drone's in the frame.
     false_ids : distinct track ids that were such a track in at least one frame.
+    off_sight_frame : (N,) a false track off the drone's line of sight in the frame (every false
+        track of a drone-free sequence); ``false_frame & ~off_sight_frame`` is the drone itself read
+        at a wrong range. off_sight_ids : distinct ids of such tracks.
     detected : (N,) the frame has a drone's track (see the module's notes).
     R_track, t_track : (N, 3, 3), (N, 3) the drone's track (body -> camera, camera-frame metres);
         NaN where not detected. R_true, t_true : the ground truth.
@@ -90,6 +111,8 @@ class SequenceScores:
     no_drone: bool
     false_frame: np.ndarray
     false_ids: int
+    off_sight_frame: np.ndarray
+    off_sight_ids: int
     detected: np.ndarray
     R_track: np.ndarray
     t_track: np.ndarray
@@ -146,10 +169,12 @@ def score_sequence(
     SequenceScores
     """
     no_drone = bool(seq.info.get("no_drone", False))
+    spec = sequence_spec(seq)
+    drone_radius_m = float(np.linalg.norm(spec.keypoints_3d, axis=1).max()) + spec.prop_diameter_m / 2.0
     pipeline = TrackingPipeline(
         seq.camera,
         model_path,
-        drone=sequence_spec(seq),
+        drone=spec,
         mirror_average=mirror_average,
         heading_model=front_back,
         verifier=verifier,
@@ -158,6 +183,7 @@ def score_sequence(
         k: []
         for k in (
             "false",
+            "off_sight",
             "detected",
             "R_track",
             "t_track",
@@ -173,6 +199,7 @@ def score_sequence(
         )
     }
     false_ids: set[int] = set()
+    off_sight_ids: set[int] = set()
     proc_s, n = 0.0, 0
     for sf in iter_frames(seq):
         t0 = time.perf_counter()
@@ -185,13 +212,22 @@ def score_sequence(
         ann = sf.record.drone
         if no_drone:
             rows["false"].append(bool(published))
+            rows["off_sight"].append(bool(published))
             false_ids.update(tr.track_id for tr in published)
+            off_sight_ids.update(tr.track_id for tr in published)
             continue
         if ann is None or not ann.has_pose:
             continue
         gate = match_gate_m(ann.translation)
         is_drone = [float(np.linalg.norm(tr.position_m - ann.translation)) <= gate for tr in published]
         false_ids.update(tr.track_id for tr, ok in zip(published, is_drone, strict=True) if not ok)
+        off_sight = [
+            tr.track_id
+            for tr, ok in zip(published, is_drone, strict=True)
+            if not ok and not on_line_of_sight(tr.position_m, ann.translation, drone_radius_m)
+        ]
+        off_sight_ids.update(off_sight)
+        rows["off_sight"].append(bool(off_sight))
         mine = [tr for tr, ok in zip(published, is_drone, strict=True) if ok]
         best = min(mine, key=published_track_rank) if mine else None
         rows["false"].append(not all(is_drone))
@@ -219,6 +255,8 @@ def score_sequence(
         no_drone=no_drone,
         false_frame=_stack(rows["false"], (), bool),
         false_ids=len(false_ids),
+        off_sight_frame=_stack(rows["off_sight"], (), bool),
+        off_sight_ids=len(off_sight_ids),
         detected=_stack(rows["detected"], (), bool),
         R_track=_stack(rows["R_track"], (3, 3)),
         t_track=_stack(rows["t_track"], (3,)),

@@ -10,7 +10,9 @@ Per sequence and per group (a frame-weighted average over the scored frames, ``s
   presence as the score; a frame without detection is a miss) against the annotated keypoints,
   as ``dronekey-eval pose`` computes it (full-frame pixels, OKS area = annotated box area);
 - false-track frames: scored frames holding a false track, also per 1,000 scored frames, and the
-  number of distinct track ids that were ever such a track;
+  number of distinct track ids that were ever such a track; and the same for the false tracks
+  off the drone's line of sight alone (clutter, or a drone's track that coasted away; the rest are
+  the drone read at a wrong range);
 - confident wrong heading %: annotated frames whose drone's track has a wrong heading with
   confidence, percent of the annotated frames; ``wrong_heading_pct`` is the same share at any
   confidence; ``confident_right_heading_pct`` the share whose track is right and says so (what the
@@ -42,6 +44,8 @@ def summarise(scores: Sequence[SequenceScores]) -> dict:
     dict with ``sequences``, ``frames`` (scored), ``detected_frames``, ``detected_pct``,
     ``mae_angle_deg``, ``rmse_m``, ``mae_abs_m``, ``mae_angle_up_to_twin_deg``, ``ap_kp``
     (percent), ``false_track_frames``, ``false_tracks_per_1000_frames``, ``false_track_ids``,
+    ``off_sight_track_frames``, ``off_sight_tracks_per_1000_frames``, ``off_sight_track_ids`` (the false
+    tracks off the drone's line of sight),
     ``confident_wrong_heading_frames``, ``confident_wrong_heading_pct``, ``wrong_heading_frames``,
     ``wrong_heading_pct`` (any confidence), ``confident_right_heading_frames`` and
     ``confident_right_heading_pct``; figures that need a drone sequence are None without
@@ -49,6 +53,7 @@ def summarise(scores: Sequence[SequenceScores]) -> dict:
     """
     frames = sum(s.frames for s in scores)
     false_frames = sum(int(s.false_frame.sum()) for s in scores)
+    off_sight_frames = sum(int(s.off_sight_frame.sum()) for s in scores)
     drone = [s for s in scores if not s.no_drone]
     n_ann = sum(s.frames for s in drone)
     out = {
@@ -66,6 +71,11 @@ def summarise(scores: Sequence[SequenceScores]) -> dict:
             1000.0 * false_frames / frames if frames else float("nan"), 2
         ),
         "false_track_ids": sum(s.false_ids for s in scores),
+        "off_sight_track_frames": off_sight_frames,
+        "off_sight_tracks_per_1000_frames": rounded(
+            1000.0 * off_sight_frames / frames if frames else float("nan"), 2
+        ),
+        "off_sight_track_ids": sum(s.off_sight_ids for s in scores),
         "confident_wrong_heading_frames": None,
         "confident_wrong_heading_pct": None,
         "wrong_heading_frames": None,
