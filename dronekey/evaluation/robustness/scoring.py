@@ -170,7 +170,7 @@ def score_sequence(
     """
     no_drone = bool(seq.info.get("no_drone", False))
     spec = sequence_spec(seq)
-    drone_radius_m = float(np.linalg.norm(spec.keypoints_3d, axis=1).max()) + spec.prop_diameter_m / 2.0
+    drone_radius_m = spec.extent_m / 2.0  # the circle that holds every propeller disc
     pipeline = TrackingPipeline(
         seq.camera,
         model_path,
