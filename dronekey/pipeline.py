@@ -399,12 +399,13 @@ class TrackingPipeline:
             ):
                 owners.append(p)
                 boxes.append(box)
+        verify = [p.status is TrackStatus.TENTATIVE for p in owners]  # the verifier confirms, no more
         measured: list[Measured] = []
         rejections: list[str] = []
         taken: list = []  # keypoint boxes already measured this frame
         threshold = self.localizer.config.presence_threshold
         found = []  # (prediction, detection, keypoint box) of the crops that hold a drone, best first
-        for p, det in zip(owners, self.localizer.track_many(frame.image, boxes), strict=True):
+        for p, det in zip(owners, self.localizer.track_many(frame.image, boxes, verify), strict=True):
             if det.presence >= threshold:
                 det = self.poses.order_keypoints(det, (p.R, p.t), p.track_id)
                 found.append((p, det, box_from_keypoints(det.keypoints_px, self.spec)))

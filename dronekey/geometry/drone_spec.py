@@ -8,6 +8,7 @@ metres. Keypoint order as listed in the file; the shipped specs use 1 front-righ
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 from importlib import resources
 from pathlib import Path
 
@@ -48,9 +49,10 @@ class DroneSpec:
     body: dict = field(default_factory=dict)
     sources: dict = field(default_factory=dict)
 
-    @property
+    @cached_property
     def diagonal_m(self) -> float:
-        """Largest hub-to-hub distance (the manufacturer's 'diagonal wheelbase')."""
+        """Largest hub-to-hub distance (the manufacturer's 'diagonal wheelbase'); computed once (the
+        localiser asks for it several times a frame)."""
         k = self.keypoints_3d
         return float(max(np.linalg.norm(k[i] - k[j]) for i in range(4) for j in range(i + 1, 4)))
 

@@ -397,11 +397,13 @@ class KeypointModel:
             )
         return detections
 
-    def detect(self, frame: np.ndarray | FrameImage, rois: Sequence[ROI]) -> list[KeypointDetection]:
+    def detect(
+        self, frame: np.ndarray | FrameImage, rois: Sequence[ROI], verify: Sequence[bool] | None = None
+    ) -> list[KeypointDetection]:
         """Crop ``rois`` out of a frame (a BGR array, or a ``FrameImage`` of which only the crops
         are converted to colour), run the network and the patch classifiers, return one detection
-        per roi: ``finish(read(frame, rois))``."""
-        return self.finish(self.read(frame, rois))
+        per roi: ``finish(read(frame, rois), verify=verify)``."""
+        return self.finish(self.read(frame, rois), verify=verify)
 
     __call__ = detect
 
@@ -427,26 +429,35 @@ class KeypointModel:
         return self.postprocess(reading.raw, reading.rois) if reading.rois else []
 
     def finish(
-        self, reading: KeypointReading, select: Sequence[int] | None = None
+        self,
+        reading: KeypointReading,
+        select: Sequence[int] | None = None,
+        verify: Sequence[bool] | None = None,
     ) -> list[KeypointDetection]:
         """The detections of a reading (of its crops ``select`` only, in that order, when given):
         the patch classifiers on the crops that hold a drone, then ``postprocess``. Crops cut again
-        need not pay for the classifiers on their first cut."""
+        need not pay for the classifiers on their first cut. ``verify`` (one flag per crop of the
+        reading, all by default): the crops the drone verifier looks at; the others get ``drone_p``
+        NaN (a confirmed track's crop: the verdict is confirmation evidence only)."""
         if select is not None:
+            if verify is not None:
+                verify = [verify[k] for k in select]
             reading = reading.subset(select)
         if not reading.rois:
             return []
         raw, drone_p = reading.raw, None
         if self.heading_model is not None or self.verifier is not None:
-            raw, drone_p = self._read_patches(reading.crops, raw)
+            raw, drone_p = self._read_patches(reading.crops, raw, verify)
         return self.postprocess(raw, reading.rois, drone_p)
 
-    def _read_patches(self, crops: np.ndarray, raw: RawOutputs) -> tuple[RawOutputs, np.ndarray | None]:
+    def _read_patches(
+        self, crops: np.ndarray, raw: RawOutputs, verify: Sequence[bool] | None = None
+    ) -> tuple[RawOutputs, np.ndarray | None]:
         """The patch classifiers on the crops the network finds a drone in (presence at least
         ``HEADING_MIN_PRESENCE``; the others, which no later stage keeps, get heading 0.5 and
         ``drone_p`` 0 without running them): the front/back classifier's probability replaces the
-        network's head (``raw.heading``), the verifier's is returned (None without a verifier).
-        The front-up patch is built once for both."""
+        network's head (``raw.heading``), the verifier's is returned (None without a verifier; NaN
+        for the crops ``verify`` leaves out). The front-up patch is built once for both."""
         keep = np.flatnonzero(raw.presence >= HEADING_MIN_PRESENCE)
         tensor = ratios = None
         if len(keep):
@@ -460,6 +471,10 @@ class KeypointModel:
         drone_p = None
         if self.verifier is not None:
             drone_p = np.zeros(len(crops), dtype=np.float32)
-            if tensor is not None:
-                drone_p[keep] = self.verifier.postprocess(self.verifier.inference(tensor), ratios)
+            asked = np.ones(len(crops), bool) if verify is None else np.asarray(verify, bool)
+            drone_p[~asked] = np.nan
+            run = asked[keep] if tensor is not None else np.zeros(0, bool)
+            if run.any():
+                p = self.verifier.postprocess(self.verifier.inference(tensor[run]), ratios[run])
+                drone_p[keep[run]] = p
         return raw, drone_p

@@ -174,10 +174,13 @@ class Localizer:
         (``LocalizerConfig.recut_shift`` / ``recut_scale``)."""
         return self.track_many(frame, [box])[0]
 
-    def track_many(self, frame: np.ndarray | FrameImage, boxes: Sequence[Box]) -> list[KeypointDetection]:
+    def track_many(
+        self, frame: np.ndarray | FrameImage, boxes: Sequence[Box], verify: Sequence[bool] | None = None
+    ) -> list[KeypointDetection]:
         """``track`` for several predicted boxes (one per live track) in one batched inference, and
         one more batch for the crops that need a recut (the patch classifiers run on each crop's
-        last cut only)."""
+        last cut only). ``verify``: per box, whether the drone verifier looks at its crop (all by
+        default; a confirmed track's crop need not: ``KeypointModel.finish``)."""
         if not boxes:
             return []
         reading = self.model.read(frame, [self.crop.roi(box) for box in boxes])
@@ -192,10 +195,12 @@ class Localizer:
             shift = max(abs(nx + nside / 2 - x0 - side / 2), abs(ny + nside / 2 - y0 - side / 2)) / side
             if shift > cfg.recut_shift or abs(nside / side - 1.0) > cfg.recut_scale:
                 recut.append(k)
-        again = dict(zip(recut, self.refine_many(frame, [rough[k] for k in recut]), strict=True))
+        asked = [True] * len(boxes) if verify is None else list(verify)
+        again_rois = [self.crop.roi(box_from_keypoints(rough[k].keypoints_px, self.spec)) for k in recut]
+        again = dict(zip(recut, self.model.detect(frame, again_rois, [asked[k] for k in recut]), strict=True))
         held = {k for k, det in again.items() if det.presence >= cfg.presence_threshold}
         first_cut = [k for k in range(len(rough)) if k not in held]  # no recut, or the recut lost it
-        dets = dict(zip(first_cut, self.model.finish(reading, first_cut), strict=True))
+        dets = dict(zip(first_cut, self.model.finish(reading, first_cut, asked), strict=True))
         return [dets[k] if k in dets else again[k] for k in range(len(rough))]
 
     def refine(self, frame: np.ndarray | FrameImage, detection: KeypointDetection) -> KeypointDetection:

@@ -177,6 +177,24 @@ def test_the_search_for_more_drones_runs_every_search_more_every_frames(every):
     assert len(ran) >= tracked // every - 1, (ran, tracked)
 
 
+def test_the_verifier_looks_at_tentative_tracks_only():
+    """Shipped model and verifier, one drone (seq13): the verdict is confirmation evidence, so a
+    tentative track's crop is verified and a confirmed track's is not (``drone_p`` NaN), and the
+    track is still confirmed."""
+    pipeline = TrackingPipeline(preset_camera(), drone=SPEC)
+    assert pipeline.model.verifier is not None
+    verdicts = {"tentative": [], "held": []}
+    held: set[int] = set()
+    for i, rf in enumerate(build_sequence("seq13", seed=101, frames=20)):
+        out = pipeline.process(Frame(i, i * 33_333_333, rf.image))
+        for m in out.measured:
+            if m.track_id is not None:
+                verdicts["held" if m.track_id in held else "tentative"].append(m.detection.drone_p)
+        held = {t.track_id for t in out.tracks if t.status in (TrackStatus.CONFIRMED, TrackStatus.COASTING)}
+    assert held and verdicts["tentative"] and len(verdicts["held"]) >= 5
+    assert all(np.isfinite(verdicts["tentative"])) and all(np.isnan(verdicts["held"]))
+
+
 @pytest.mark.parametrize(
     ("name", "value"), [("search_more_every", 0), ("search_every", -1), ("max_search_candidates", True)]
 )

@@ -76,6 +76,11 @@ def test_train_export_and_load(tmp_path):
     _, drone_p = keypoints._read_patches(crops, raw)
     assert drone_p.shape == (6,) and np.all((drone_p >= 0) & (drone_p <= 1))
     assert np.all(drone_p[raw.presence < HEADING_MIN_PRESENCE] == 0.0)  # not run on empty crops
+    # A confirmed track's crop is not verified (NaN); the others' verdicts are as before.
+    verify = [k % 2 == 0 for k in range(6)]
+    _, some = keypoints._read_patches(crops, raw, verify)
+    assert np.all(np.isnan(some[1::2]))
+    np.testing.assert_allclose(some[0::2], drone_p[0::2], rtol=1e-5, atol=1e-6)
 
 
 def test_errors_name_what_is_wrong(tmp_path, capsys):
