@@ -193,6 +193,8 @@ def _cmd_robustness(args: argparse.Namespace) -> int:
         raise _UsageError(f"--frames must be positive, got {frames}")
     if args.drone_free is not None and args.drone_free < 0:
         raise _UsageError(f"--drone-free must be >= 0, got {args.drone_free}")
+    if args.dither is not None and args.dither < 0:
+        raise _UsageError(f"--dither must be >= 0, got {args.dither}")
     if args.seeds is not None:
         negative = [s for s in args.seeds if s < 0]
         if negative:
@@ -224,6 +226,7 @@ def _cmd_robustness(args: argparse.Namespace) -> int:
             verifier=False if args.no_verifier else (args.verifier or True),
             progress=sys.stderr.isatty(),
             select=args.select,
+            dither=args.dither,
         )
     except ImportError as exc:  # --background photos without scikit-image / scikit-learn
         raise _UsageError(str(exc)) from None
@@ -256,6 +259,10 @@ metrics per row (frames pooled): MAE-angle (deg), RMSE (m), MAE-absolute (m) of 
   false tracks off the drone's line of sight (off-sight: clutter, or a track that coasted away;
   the rest is the drone read at a wrong range), and wrong heading % (the drone's track > 90 deg
   off while heading_confidence >= 0.5).
+
+noise floor: --dither SEED scores the same renders with a grey level of seeded noise on every
+  frame; the change of each figure against a run without is how far it moves on noise alone, the
+  least difference between two pipelines that the matrix can tell apart.
 """
 
 
@@ -366,6 +373,13 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--front-back", default=None, help="ONNX front/back classifier (default: the shipped one)")
     r.add_argument("--verifier", default=None, help="ONNX drone verifier (default: the shipped one, if any)")
     r.add_argument("--no-verifier", action="store_true", help="run without a drone verifier")
+    r.add_argument(
+        "--dither",
+        type=int,
+        metavar="SEED",
+        help="add -1, 0 or +1 grey level of seeded noise to every frame before the pipeline: the "
+        "figures' change against a run without is the evaluation's noise floor",
+    )
     r.add_argument("--quick", action="store_true", help="reduced matrix for a smoke test (see above)")
     r.add_argument(
         "--drone-free",

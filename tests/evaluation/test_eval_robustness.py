@@ -295,3 +295,37 @@ def test_out_must_be_a_folder(tmp_path, capsys):
     path.write_text("x")
     assert main(["robustness", "--out", str(path)]) == 2
     assert "--out must be a folder" in capsys.readouterr().err
+
+
+def test_dither_adds_at_most_one_grey_level_reproducibly():
+    """Each pixel and channel moves by -1, 0 or +1 (about a third each), saturating at 0 and 255;
+    the same seed gives the same noise, another seed other noise, and the input is left alone."""
+    from dronekey.evaluation.robustness.dither import FrameDither
+    from dronekey.types import Frame
+
+    image = np.full((60, 80, 3), 128, np.uint8)
+    image[0] = 0
+    image[1] = 255
+    frame = Frame(3, 100, image)
+    a, b, other = FrameDither(5)(frame).bgr, FrameDither(5)(frame).bgr, FrameDither(6)(frame).bgr
+    step = a.astype(int) - image
+    assert set(np.unique(step[2:])) == {-1, 0, 1}
+    assert all(0.3 < np.mean(step[2:] == v) < 0.37 for v in (-1, 0, 1))
+    assert a[0].min() == 0 and a[0].max() <= 1 and a[1].max() == 255 and a[1].min() >= 254
+    assert np.array_equal(a, b) and not np.array_equal(a, other)
+    assert np.array_equal(frame.bgr, image)
+    nxt = FrameDither(5)(Frame(4, 133, image)).bgr
+    assert not np.array_equal(nxt, a)  # the next frame's noise is drawn apart
+    with pytest.raises(ValueError, match="seed must be an integer >= 0, got -1"):
+        FrameDither(-1)
+
+
+def test_cli_dither_is_recorded_and_named_in_the_table(tmp_path, capsys):
+    argv = ["robustness", "--out", str(tmp_path), "--quick", "--frames", "2", "--size", "320x180"]
+    argv += ["--drone-free", "1", "--select", "*nodrone*", "--dither", "9"]
+    assert main([*argv, "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["settings"]["dither"] == 9
+    assert main(argv) == 0
+    assert "frames dithered (seed 9)" in capsys.readouterr().out.splitlines()[0]
+    assert main(["robustness", "--out", str(tmp_path), "--dither", "-2"]) == 2
+    assert "--dither must be >= 0, got -2" in capsys.readouterr().err

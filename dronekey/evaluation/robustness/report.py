@@ -110,7 +110,8 @@ class RobustnessReport:
             f"(scene seeds {st['scene_seeds']}), {st['frames']} frames per sequence at "
             f"{st['size'][0]}x{st['size'][1]}, model {Path(st['model']).name}"
             + (f", front/back {Path(st['front_back']).name}" if st.get("front_back") else "")
-            + (f", verifier {Path(st['verifier']).name}" if st.get("verifier") else ""),
+            + (f", verifier {Path(st['verifier']).name}" if st.get("verifier") else "")
+            + (f", frames dithered (seed {st['dither']})" if st.get("dither") is not None else ""),
             head,
             units,
             "-" * len(head),

@@ -14,6 +14,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
+from dronekey.evaluation.robustness.dither import FrameDither
 from dronekey.evaluation.robustness.matrix import (
     BACKGROUNDS,
     DEFAULT_FRAMES,
@@ -61,6 +62,7 @@ def run_robustness(
     verifier: bool | str | Path = True,
     progress: bool = False,
     select: Sequence[str] | None = None,
+    dither: int | None = None,
 ) -> RobustnessReport:
     """Render the matrix (reusing what ``out_dir`` holds), run the pipeline and score it.
 
@@ -81,6 +83,9 @@ def run_robustness(
     select : glob patterns on the sequence names (``s6501-seq11-nodrone-sky``, ...); only the
         sequences matching one of them are rendered and scored, each with the seeds it has in the
         whole matrix (e.g. ``["*nodrone*"]``: the drone-free part alone). None: every sequence.
+    dither : a seed: every frame gets a grey level of seeded noise before the pipeline
+        (``dronekey.evaluation.robustness.dither``); the figures' change against a run without
+        says how far they move on noise alone. None: the frames as decoded.
 
     Returns
     -------
@@ -112,6 +117,7 @@ def run_robustness(
     out_dir = Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():
         raise ValueError(f"out_dir must be a folder, got the file {str(out_dir)!r}")
+    noise_check = None if dither is None else FrameDither(dither)  # a bad seed fails before the renders
     model = KeypointModel(model_path)  # bad models fail now, not after the renders
     heading, drone_verifier = load_heading_model(front_back), load_verifier(verifier)
     entries = [e for plan in plans.values() for e in plan]
@@ -137,6 +143,7 @@ def run_robustness(
         "front_back": str(heading.path) if heading else None,
         "verifier": str(drone_verifier.path) if drone_verifier else None,
         "mirror_average": bool(mirror_average),
+        "dither": None if noise_check is None else noise_check.seed,
         "match_gate": {"min_m": MATCH_GATE_M, "range_fraction": MATCH_GATE_FRACTION},
         "wrong_heading_deg": WRONG_HEADING_DEG,
         "confident_heading": CONFIDENT_HEADING,
@@ -163,6 +170,7 @@ def run_robustness(
                 front_back=settings["front_back"] or False,
                 verifier=settings["verifier"] or False,
                 on_frame=bar.update,
+                dither=settings["dither"],
             )
             report.sequences.append(EvaluatedSequence(r, scores))
     settings["render_s"] = round(t1 - t0, 1)

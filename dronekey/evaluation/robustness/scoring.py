@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from dronekey.evaluation.pose import published_track_rank, sequence_spec
+from dronekey.evaluation.robustness.dither import FrameDither
 from dronekey.geometry.rotations import geodesic_angle_deg, quat_wxyz_to_matrix
 from dronekey.pipeline import TrackingPipeline
 from dronekey.sim_replay.annotations import SequenceAnnotations
@@ -151,6 +152,7 @@ def score_sequence(
     front_back: bool | str | Path = True,
     verifier: bool | str | Path = True,
     on_frame: Callable[[], object] | None = None,
+    dither: int | None = None,
 ) -> SequenceScores:
     """Run a fresh ``TrackingPipeline`` over a loaded sequence and score every frame.
 
@@ -163,6 +165,8 @@ def score_sequence(
     front_back, verifier : the pipeline's front/back classifier and drone verifier (``heading_model``
         and ``verifier`` of ``TrackingPipeline``: True the shipped ones, a path another, False none).
     on_frame : called after each frame (a progress bar's ``update``).
+    dither : with a seed, every frame gets a grey level of seeded noise first
+        (``dronekey.evaluation.robustness.dither``): the figures' noise floor.
 
     Returns
     -------
@@ -201,9 +205,11 @@ def score_sequence(
     false_ids: set[int] = set()
     off_sight_ids: set[int] = set()
     proc_s, n = 0.0, 0
+    noise = None if dither is None else FrameDither(dither)
     for sf in iter_frames(seq):
+        frame = sf.frame if noise is None else noise(sf.frame)
         t0 = time.perf_counter()
-        out = pipeline.process(sf.frame)
+        out = pipeline.process(frame)
         proc_s += time.perf_counter() - t0
         n += 1
         if on_frame is not None:
