@@ -473,7 +473,7 @@ class KeypointModel:
             drone_p = np.zeros(len(crops), dtype=np.float32)
             asked = np.ones(len(crops), bool) if verify is None else np.asarray(verify, bool)
             drone_p[~asked] = np.nan
-            run = asked[keep] if tensor is not None else np.zeros(0, bool)
+            run = asked[keep]  # empty when no crop holds a drone (and ``tensor`` is None)
             if run.any():
                 p = self.verifier.postprocess(self.verifier.inference(tensor[run]), ratios[run])
                 drone_p[keep[run]] = p

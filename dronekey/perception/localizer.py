@@ -196,8 +196,8 @@ class Localizer:
             if shift > cfg.recut_shift or abs(nside / side - 1.0) > cfg.recut_scale:
                 recut.append(k)
         asked = [True] * len(boxes) if verify is None else list(verify)
-        again_rois = [self.crop.roi(box_from_keypoints(rough[k].keypoints_px, self.spec)) for k in recut]
-        again = dict(zip(recut, self.model.detect(frame, again_rois, [asked[k] for k in recut]), strict=True))
+        recuts = self.refine_many(frame, [rough[k] for k in recut], [asked[k] for k in recut])
+        again = dict(zip(recut, recuts, strict=True))
         held = {k for k, det in again.items() if det.presence >= cfg.presence_threshold}
         first_cut = [k for k in range(len(rough)) if k not in held]  # no recut, or the recut lost it
         dets = dict(zip(first_cut, self.model.finish(reading, first_cut, asked), strict=True))
@@ -208,11 +208,14 @@ class Localizer:
         return self.refine_many(frame, [detection])[0]
 
     def refine_many(
-        self, frame: np.ndarray | FrameImage, detections: Sequence[KeypointDetection]
+        self,
+        frame: np.ndarray | FrameImage,
+        detections: Sequence[KeypointDetection],
+        verify: Sequence[bool] | None = None,
     ) -> list[KeypointDetection]:
-        """``refine`` for several detections in one batch."""
+        """``refine`` for several detections in one batch (``verify``: see ``track_many``)."""
         rois = [self.crop.roi(box_from_keypoints(d.keypoints_px, self.spec)) for d in detections]
-        return self.model.detect(frame, rois)
+        return self.model.detect(frame, rois, verify)
 
     # ------------------------------------------------------------------ acquisition
     def acquire(self, frame: np.ndarray | FrameImage) -> KeypointDetection | None:

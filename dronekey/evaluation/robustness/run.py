@@ -117,7 +117,7 @@ def run_robustness(
     out_dir = Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():
         raise ValueError(f"out_dir must be a folder, got the file {str(out_dir)!r}")
-    noise_check = None if dither is None else FrameDither(dither)  # a bad seed fails before the renders
+    noise = None if dither is None else FrameDither(dither)  # a bad seed fails before the renders
     model = KeypointModel(model_path)  # bad models fail now, not after the renders
     heading, drone_verifier = load_heading_model(front_back), load_verifier(verifier)
     entries = [e for plan in plans.values() for e in plan]
@@ -143,7 +143,7 @@ def run_robustness(
         "front_back": str(heading.path) if heading else None,
         "verifier": str(drone_verifier.path) if drone_verifier else None,
         "mirror_average": bool(mirror_average),
-        "dither": None if noise_check is None else noise_check.seed,
+        "dither": None if noise is None else noise.seed,
         "match_gate": {"min_m": MATCH_GATE_M, "range_fraction": MATCH_GATE_FRACTION},
         "wrong_heading_deg": WRONG_HEADING_DEG,
         "confident_heading": CONFIDENT_HEADING,
@@ -170,7 +170,7 @@ def run_robustness(
                 front_back=settings["front_back"] or False,
                 verifier=settings["verifier"] or False,
                 on_frame=bar.update,
-                dither=settings["dither"],
+                dither=noise,
             )
             report.sequences.append(EvaluatedSequence(r, scores))
     settings["render_s"] = round(t1 - t0, 1)

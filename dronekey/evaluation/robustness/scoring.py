@@ -152,7 +152,7 @@ def score_sequence(
     front_back: bool | str | Path = True,
     verifier: bool | str | Path = True,
     on_frame: Callable[[], object] | None = None,
-    dither: int | None = None,
+    dither: FrameDither | None = None,
 ) -> SequenceScores:
     """Run a fresh ``TrackingPipeline`` over a loaded sequence and score every frame.
 
@@ -165,8 +165,9 @@ def score_sequence(
     front_back, verifier : the pipeline's front/back classifier and drone verifier (``heading_model``
         and ``verifier`` of ``TrackingPipeline``: True the shipped ones, a path another, False none).
     on_frame : called after each frame (a progress bar's ``update``).
-    dither : with a seed, every frame gets a grey level of seeded noise first
-        (``dronekey.evaluation.robustness.dither``): the figures' noise floor.
+    dither : every frame gets its grey level of seeded noise first
+        (``dronekey.evaluation.robustness.dither``; one instance for the whole matrix, so its noise
+        is drawn once): the figures' noise floor. None: the frames as decoded.
 
     Returns
     -------
@@ -205,9 +206,8 @@ def score_sequence(
     false_ids: set[int] = set()
     off_sight_ids: set[int] = set()
     proc_s, n = 0.0, 0
-    noise = None if dither is None else FrameDither(dither)
     for sf in iter_frames(seq):
-        frame = sf.frame if noise is None else noise(sf.frame)
+        frame = sf.frame if dither is None else dither(sf.frame)
         t0 = time.perf_counter()
         out = pipeline.process(frame)
         proc_s += time.perf_counter() - t0
