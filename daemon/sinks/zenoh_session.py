@@ -3,18 +3,24 @@
 ``zenoh_config`` turns the checked ``zenoh`` section into a ``zenoh.Config``; ``describe_exposure``
 says in one line what a session with these settings exposes, for the log at start. Secure by
 default: a peer listens on 127.0.0.1 only, a client nowhere, and scouting is off.
+``CallbackThreads`` lets a session's owner wait for the threads that deliver its callbacks, so the
+process can end without aborting.
 """
 
 from __future__ import annotations
 
 import json
 import re
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
 
 import zenoh
 
 from dronekey.daemon.config.zenoh import ZenohConfig
 
-__all__ = ["describe_exposure", "zenoh_config"]
+__all__ = ["CallbackThreads", "describe_exposure", "zenoh_config"]
 
 # The host of an endpoint's address: [IPv6] or everything up to the port, metadata or config.
 _HOST = re.compile(r"^(?:\[(?P<v6>[^\]]*)\]|(?P<host>[^:#?]*))")
@@ -99,3 +105,38 @@ def describe_exposure(config: ZenohConfig) -> str:
     )
     tls_text = f"TLS with mutual authentication as {tls.certificate}" if tls is not None else "no TLS"
     return f"zenoh {config.mode} session: {listening}, {connecting}, {scouting_text}, {tls_text}"
+
+
+class CallbackThreads:
+    """Python callbacks for Zenoh declarations, and a wait for the threads that deliver them.
+
+    zenoh-python delivers each callback on a Python thread of its own, started by the declaring
+    thread and so a daemon thread when that one is (the sink opens its session on one). When the
+    declaration goes, that thread leaves its wait inside zenoh's Rust code and takes the GIL back; if
+    the interpreter is finalizing by then, CPython 3.11 ends the thread with ``pthread_exit``, whose
+    unwinding Rust refuses, and the whole process aborts (SIGABRT, "FATAL: exception not rethrown").
+    ``wrap`` hands zenoh a ``zenoh.handlers.Callback`` whose drop hook, called on that thread once
+    its loop is over, releases a lock (a C call: no Python bytecode, so no thread switch before the
+    Rust frames are gone); ``wait``, after the declarations are undeclared and the session closed,
+    blocks until every wrapped callback's thread got that far.
+    """
+
+    def __init__(self) -> None:
+        self._finished: list[threading.Lock] = []
+
+    def wrap(self, callback: Callable[[Any], Any]) -> zenoh.handlers.Callback:
+        """``callback`` as a Zenoh handler whose delivery thread ``wait`` can wait for."""
+        finished = threading.Lock()
+        finished.acquire()
+        self._finished.append(finished)
+        return zenoh.handlers.Callback(callback, finished.release)
+
+    def wait(self, timeout_s: float) -> bool:
+        """Wait up to ``timeout_s`` (s) in all for the wrapped callbacks' threads to end their
+        loops; True if they all did (the declarations must be gone, or they never will)."""
+        deadline = time.monotonic() + timeout_s
+        while self._finished:
+            if not self._finished[-1].acquire(timeout=max(deadline - time.monotonic(), 0.0)):
+                return False
+            self._finished.pop()
+        return True

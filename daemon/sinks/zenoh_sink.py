@@ -44,7 +44,7 @@ from dronekey.daemon.config.zenoh import ZenohConfig
 from dronekey.daemon.geo import CameraGeo
 from dronekey.daemon.sinks.base import FrameUpdate, Sink
 from dronekey.daemon.sinks.zenoh_publishing import LiveTracks, Sequenced, declare_cached_publisher
-from dronekey.daemon.sinks.zenoh_session import describe_exposure, zenoh_config
+from dronekey.daemon.sinks.zenoh_session import CallbackThreads, describe_exposure, zenoh_config
 from dronekey.types import TrackStatus
 
 __all__ = ["ZenohSink", "describe_exposure", "zenoh_config"]
@@ -67,8 +67,11 @@ class _Declared:
     token: zenoh.LivelinessToken
     info: zenoh.Queryable
     live_queryable: zenoh.Queryable
+    callbacks: CallbackThreads  # the queryables' delivery threads
 
     def undeclare_and_close(self, frame_index: int) -> None:
+        """Delete the live tracks' keys, undeclare everything, close the session and wait (1 s at
+        most) for the queryables' callback threads to end, so the process can exit cleanly."""
         try:
             self.live.close(frame_index)
         except zenoh.ZError as exc:
@@ -81,6 +84,8 @@ class _Declared:
         self.tracks.undeclare()
         self.status.undeclare()
         self.session.close()
+        if not self.callbacks.wait(1.0):
+            log.warning("zenoh callback threads still running after the session closed")
 
 
 class ZenohSink(Sink):
@@ -258,6 +263,7 @@ class ZenohSink(Sink):
 
     def _open_and_declare(self) -> _Declared:
         session = zenoh.open(self._session_config)
+        callbacks = CallbackThreads()
         try:
             tracks = session.declare_publisher(
                 self._keys["tracks"],
@@ -270,13 +276,18 @@ class ZenohSink(Sink):
             live = LiveTracks(
                 session, self._keys["tracks"], _TRACK_ENCODING, self._history_depth, self._track_expiry_s
             )
-            live_queryable = session.declare_queryable(live.key_pattern, live.answer, complete=True)
+            live_queryable = session.declare_queryable(
+                live.key_pattern, callbacks.wrap(live.answer), complete=True
+            )
             token = session.liveliness().declare_token(self._keys["alive"])
-            info = session.declare_queryable(self._keys["info"], self._answer_info)
+            info = session.declare_queryable(self._keys["info"], callbacks.wrap(self._answer_info))
         except BaseException:
             session.close()
+            callbacks.wait(1.0)
             raise
-        return _Declared(session, Sequenced(tracks), Sequenced(status), live, token, info, live_queryable)
+        return _Declared(
+            session, Sequenced(tracks), Sequenced(status), live, token, info, live_queryable, callbacks
+        )
 
     def _answer_info(self, query: zenoh.Query) -> None:
         try:

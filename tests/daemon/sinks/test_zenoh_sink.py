@@ -25,6 +25,7 @@ from json_checks import schema_errors, strict_json
 from dronekey.daemon import messages
 from dronekey.daemon.config.zenoh import ZenohConfig
 from dronekey.daemon.sinks.base import FrameUpdate
+from dronekey.daemon.sinks.zenoh_session import CallbackThreads
 from dronekey.daemon.sinks.zenoh_sink import ZenohSink, zenoh_config
 from dronekey.geometry.camera import CameraModel
 
@@ -269,3 +270,33 @@ def test_endpoints_are_protocol_slash_address_as_zenoh_parses_them(tmp_path):
     for bad in ("127.0.0.1:7447", "TCP/127.0.0.1:7447", "tcp/", "/127.0.0.1:7447", "tcp/a b"):
         with pytest.raises(ValueError, match="PROTOCOL/ADDRESS"):
             ZenohConfig(connect=[bad])
+
+
+def test_callback_threads_declared_from_a_daemon_thread_end_before_close_returns():
+    """The queryables' delivery threads are daemon threads (the session opens on one); one still in
+    zenoh's code when the interpreter finalizes aborts the process, so close waits for them."""
+    session = zenoh.open(zenoh_config(ZenohConfig()))
+    callbacks = CallbackThreads()
+    declared: list[zenoh.Queryable] = []
+    delivered_on_daemon: list[bool] = []
+
+    def answer(query: zenoh.Query) -> None:
+        delivered_on_daemon.append(threading.current_thread().daemon)
+        query.reply("dronekey/test/answer", b"42")
+
+    def declare() -> None:
+        declared.append(session.declare_queryable("dronekey/test/answer", callbacks.wrap(answer)))
+
+    opener = threading.Thread(target=declare, daemon=True)
+    opener.start()
+    opener.join()
+    try:
+        replies = list(session.get("dronekey/test/answer", timeout=5.0))
+        assert [r.ok.payload.to_bytes() for r in replies] == [b"42"]
+        assert delivered_on_daemon == [True]
+        assert callbacks.wait(0.05) is False  # still declared: its thread waits for queries
+    finally:
+        declared[0].undeclare()
+        session.close()
+    assert callbacks.wait(2.0) is True
+    assert callbacks.wait(0.0) is True  # nothing left to wait for
