@@ -35,9 +35,10 @@ class TrackingConfig(Section):
         "frame, to confirm a track (0: off, e.g. to report drones hovering with stopped propellers)",
     )
     confirm_drone_p: float = Field(
-        0.5,
+        0.9,
         ge=0,
         le=1,
         description="mean drone probability the drone verifier must give a track's confirming hits "
-        "(0: off; no effect without a verifier, see model.verifier)",
+        "(0: off; no effect without a verifier, see model.verifier); lower confirms far drones sooner "
+        "and more clutter (docs/evaluation.md)",
     )

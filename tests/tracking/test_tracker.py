@@ -266,6 +266,11 @@ def test_confirmation_needs_the_verifier_to_call_the_hits_a_drone():
     assert TrackStatus.CONFIRMED not in statuses([0.9, 0.1, 0.2, 0.3, 0.1])  # mean under 0.5
     assert statuses([math.nan] * 3)[-1] is TrackStatus.CONFIRMED
     assert statuses([0.1] * 3, confirm_drone_p=0.0)[-1] is TrackStatus.CONFIRMED  # off
+    # The default: clutter the tuning seeds confirmed had means up to 0.87, a drone's median 0.98
+    default = TrackerConfig().confirm_drone_p
+    assert default == 0.9
+    assert TrackStatus.CONFIRMED not in statuses([0.85] * 5, confirm_drone_p=default)
+    assert statuses([0.95, 0.9, 0.99], confirm_drone_p=default)[-1] is TrackStatus.CONFIRMED
     with pytest.raises(ValueError, match="confirm_drone_p"):
         TrackerConfig(confirm_drone_p=1.5)
 
