@@ -7,6 +7,7 @@ import os
 
 import numpy as np
 import pytest
+from factories import make_track
 
 from dronekey.evaluation.cli import main
 from dronekey.evaluation.robustness import matrix as matrix
@@ -14,12 +15,16 @@ from dronekey.evaluation.robustness.run import run_robustness
 from dronekey.evaluation.robustness.scoring import (
     WRONG_HEADING_DEG,
     SequenceScores,
+    front_back_verdict,
     match_gate_m,
+    miss_reason,
     on_line_of_sight,
 )
 from dronekey.evaluation.robustness.seed_sets import check_seeds
 from dronekey.evaluation.robustness.summary import summarise
 from dronekey.geometry.rotations import rotation_from_euler_deg
+from dronekey.perception.keypoint_order import HEADING_TWIN
+from dronekey.types import KeypointDetection, TrackStatus
 
 # A tiny matrix: two LED modes on the held-out photos, one motion (the first sequence is far), two
 # drone-free sequences; 6 frames at 320 x 180.
@@ -54,6 +59,11 @@ METRICS = {
     "wrong_heading_pct",
     "confident_right_heading_frames",
     "confident_right_heading_pct",
+    "missed_wrong_range_pct",
+    "missed_unconfirmed_pct",
+    "missed_unseen_pct",
+    "front_back_frames",
+    "front_back_right_pct",
 }
 
 ENTRY_KEYS = {"name", "seed", "style_seed", "leds", "background", "range_scale", "far", "no_drone", "reused"}
@@ -125,8 +135,11 @@ def test_match_gate():
     assert match_gate_m(np.array([0.0, 6.0, 8.0])) == pytest.approx(2.5)
 
 
-def _scores(false, detected=(), wrong=(), confident=(), dt=(), sure_right=None, off_sight=None):
+def _scores(
+    false, detected=(), wrong=(), confident=(), dt=(), sure_right=None, off_sight=None, miss=None, fb=None
+):
     n = len(detected)
+    miss = miss or [None] * n
     R = np.repeat(np.eye(3)[None], n, axis=0)
     t_true = np.tile([0.0, 0.0, 4.0], (n, 1))
     t_track = t_true + np.asarray(dt, dtype=float).reshape(n, 3) if n else t_true
@@ -148,14 +161,29 @@ def _scores(false, detected=(), wrong=(), confident=(), dt=(), sure_right=None, 
         area=np.ones(n),
         score=np.ones(n),
         has_pred=np.ones(n, bool),
+        missed_wrong_range=np.array([m == "wrong_range" for m in miss], bool),
+        missed_unconfirmed=np.array([m == "unconfirmed" for m in miss], bool),
+        missed_unseen=np.array([m == "unseen" for m in miss], bool),
+        front_back_right=np.asarray(fb if fb is not None else [np.nan] * n, float),
     )
 
 
 def test_summarise_pools_frames():
     dt_a = [[0.3, 0, 0], [0, 0, 0]]
-    a = _scores([False, True], [True, False], [True, False], [False, False], dt_a, off_sight=[0, 0])
+    a = _scores(
+        [False, True],
+        [True, False],
+        [True, False],
+        [False, False],
+        dt_a,
+        off_sight=[0, 0],
+        miss=[None, "wrong_range"],
+        fb=[0.0, np.nan],
+    )
     dt = [[0, 0.1, 0], [0, 0.1, 0]]
-    b = _scores([False, False], [True, True], [False, False], [False, False], dt, sure_right=[True, False])
+    b = _scores(
+        [False, False], [True, True], [False, False], [False, False], dt, sure_right=[True, False], fb=[1, 1]
+    )
     free = _scores([True, False, False, True])
     s = summarise([a, b, free])
     assert s["sequences"] == 3 and s["frames"] == 8
@@ -171,6 +199,13 @@ def test_summarise_pools_frames():
     assert s["wrong_heading_frames"] == 1 and s["wrong_heading_pct"] == 25.0
     assert s["confident_wrong_heading_frames"] == 0
     assert s["confident_right_heading_frames"] == 1 and s["confident_right_heading_pct"] == 25.0
+    # The one missed frame was the drone at a wrong range; the classifier was asked on 3 frames.
+    assert (s["missed_wrong_range_pct"], s["missed_unconfirmed_pct"], s["missed_unseen_pct"]) == (
+        25.0,
+        0.0,
+        0.0,
+    )
+    assert s["front_back_frames"] == 3 and s["front_back_right_pct"] == pytest.approx(66.67)
     only_free = summarise([free])
     assert only_free["false_tracks_per_1000_frames"] == 500.0 and only_free["mae_angle_deg"] is None
     assert set(only_free) == METRICS
@@ -183,6 +218,35 @@ def test_line_of_sight_tells_the_drone_at_a_wrong_range_from_elsewhere():
     assert on_line_of_sight(np.array([0.1, 0.0, 8.0]), t_true, radius)  # far, 0.7 deg off
     assert not on_line_of_sight(np.array([1.0, 0.0, 5.0]), t_true, radius)  # 11 deg off: elsewhere
     assert not on_line_of_sight(np.zeros(3), t_true, radius)
+
+
+def test_a_missed_frame_says_whether_the_drone_was_read_at_a_wrong_range_held_or_not_held():
+    t_true, radius = np.array([0.0, 0.0, 5.0]), 0.166
+    far_on_sight = make_track(1, position_m=(0.0, 0.0, 9.0))
+    tentative = make_track(2, status=TrackStatus.TENTATIVE, position_m=(0.0, 0.0, 5.2))
+    elsewhere = make_track(3, position_m=(2.0, 0.0, 5.0))
+    lost = make_track(4, status=TrackStatus.LOST, position_m=(0.0, 0.0, 9.0))
+    assert miss_reason([tentative, far_on_sight], t_true, radius) == "wrong_range"
+    assert miss_reason([tentative, elsewhere], t_true, radius) == "unconfirmed"
+    assert miss_reason([elsewhere, lost], t_true, radius) == "unseen"
+    assert miss_reason([], t_true, radius) == "unseen"
+
+
+def test_front_back_verdict_is_the_classifiers_word_for_the_true_order():
+    truth = np.array([[110.0, 90.0], [90.0, 90.0], [90.0, 110.0], [110.0, 110.0]])
+
+    def det(kp, p):
+        return KeypointDetection(np.asarray(kp, float), 1.0, (0, 0, 200), heading_p=p)
+
+    assert front_back_verdict(det(truth + 0.5, 0.8), truth) == 1.0
+    assert front_back_verdict(det(truth[HEADING_TWIN], 0.8), truth) == 0.0  # sure of the twin
+    assert front_back_verdict(det(truth[HEADING_TWIN], 0.3), truth) == 1.0  # turned, p with it
+    assert np.isnan(front_back_verdict(det(truth, 0.5), truth))  # no answer
+    assert np.isnan(front_back_verdict(det(truth, float("nan")), truth))  # no classifier
+    assert np.isnan(front_back_verdict(det(truth + 50.0, 0.9), truth))  # another object
+    collapsed = np.tile(truth.mean(axis=0), (4, 1))  # both orders equally far: undecided
+    assert np.isnan(front_back_verdict(det(collapsed, 0.9), truth))
+    assert np.isnan(front_back_verdict(None, truth))
 
 
 def test_wrong_heading_is_a_geodesic_angle_over_90_deg():
@@ -229,8 +293,14 @@ def test_report_json_keys_and_drone_free_frames(tiny):
     assert free["ap_kp"] is None and free["detected_pct"] is None
     drone = rows[("all", "drone sequences")]
     assert drone["frames"] == 12 and 0 <= drone["detected_pct"] <= 100
+    assert drone["detected_pct"] + drone["missed_wrong_range_pct"] + drone["missed_unconfirmed_pct"] + drone[
+        "missed_unseen_pct"
+    ] == pytest.approx(100.0, abs=0.05)
     table = report.table()
     assert "leds red-front" in table and "drone-free" in table and "far x2.5" in table
+    # The second table (missed frames, front/back per detection) has no drone-free row.
+    second = table[table.index("frames without the drone's track") :]
+    assert "leds red-front" in second and "unconf" in second and "drone-free" not in second
 
 
 def test_rerun_reuses_the_renders(tiny):

@@ -53,6 +53,17 @@ _COLUMNS = (
     ("sure ok", "%", "confident_right_heading_pct", "{:.1f}"),
 )
 
+# The second table: where the frames without the drone's track went, and the front/back classifier
+# per detection (``summary``'s notes).
+_MISS_COLUMNS = (
+    ("detected", "%", "detected_pct", "{:.1f}"),
+    ("range", "%", "missed_wrong_range_pct", "{:.1f}"),
+    ("unconf", "%", "missed_unconfirmed_pct", "{:.1f}"),
+    ("unseen", "%", "missed_unseen_pct", "{:.1f}"),
+    ("f/b dets", "", "front_back_frames", "{:d}"),
+    ("f/b ok", "%", "front_back_right_pct", "{:.1f}"),
+)
+
 
 @dataclass
 class RobustnessReport:
@@ -95,16 +106,9 @@ class RobustnessReport:
         }
 
     def table(self) -> str:
-        """One text table: a row per group (``groups``), a blank line between kinds of group."""
+        """Two text tables of a row per group (``groups``), a blank line between kinds of group: the
+        figures, then where the missed frames went and the front/back classifier per detection."""
         st = self.settings
-        label_w = 24
-        widths = [max(len(h), len(u), 6) for h, u, _, _ in _COLUMNS]
-        head = f"{'group':<{label_w}}" + "".join(
-            f" {h:>{w}}" for (h, _, _, _), w in zip(_COLUMNS, widths, strict=True)
-        )
-        units = f"{'':<{label_w}}" + "".join(
-            f" {u:>{w}}" for (_, u, _, _), w in zip(_COLUMNS, widths, strict=True)
-        )
         lines = [
             f"robustness: {st['seed_set']} seeds {', '.join(map(str, st['seeds']))} "
             f"(scene seeds {st['scene_seeds']}), {st['frames']} frames per sequence at "
@@ -112,24 +116,43 @@ class RobustnessReport:
             + (f", front/back {Path(st['front_back']).name}" if st.get("front_back") else "")
             + (f", verifier {Path(st['verifier']).name}" if st.get("verifier") else "")
             + (f", frames dithered (seed {st['dither']})" if st.get("dither") is not None else ""),
-            head,
-            units,
-            "-" * len(head),
         ]
         if not st.get("model_has_heading_head", True):
-            lines.insert(
-                1, "(the model has no front/back head: heading_confidence is NaN, conf>90 is 0 by definition)"
+            lines.append(
+                "(the model has no front/back head: heading_confidence is NaN, conf>90 is 0 by definition)"
             )
+        lines += self._rows(_COLUMNS, drone_free=True)
+        lines += [
+            "",
+            "frames without the drone's track: read at a wrong range, held but not confirmed, not held;"
+            " the front/back classifier per detection of the drone",
+            *self._rows(_MISS_COLUMNS, drone_free=False),
+        ]
+        return "\n".join(lines)
+
+    def _rows(self, columns: tuple, drone_free: bool) -> list[str]:
+        """Header, units, rule and a line per group of one table of ``columns``."""
+        label_w = 24
+        widths = [max(len(h), len(u), 6) for h, u, _, _ in columns]
+        head = f"{'group':<{label_w}}" + "".join(
+            f" {h:>{w}}" for (h, _, _, _), w in zip(columns, widths, strict=True)
+        )
+        units = f"{'':<{label_w}}" + "".join(
+            f" {u:>{w}}" for (_, u, _, _), w in zip(columns, widths, strict=True)
+        )
+        lines = [head, units, "-" * len(head)]
         previous = None
         for by, value, seqs in self.groups():
+            if by == "drone-free" and not drone_free:
+                continue
             if previous is not None and by != previous:
                 lines.append("")
             previous = by
             summary = summarise([s.scores for s in seqs])
             label = value if by in ("all", "drone-free") else f"{by} {value}"
             cells = []
-            for (_, _, key, fmt), w in zip(_COLUMNS, widths, strict=True):
+            for (_, _, key, fmt), w in zip(columns, widths, strict=True):
                 v = summary[key]
                 cells.append(f" {'-' if v is None else fmt.format(v):>{w}}")
             lines.append(f"{label:<{label_w}}" + "".join(cells))
-        return "\n".join(lines)
+        return lines

@@ -16,7 +16,13 @@ A fresh ``TrackingPipeline`` (unchanged) runs over every frame; per scored frame
   (geodesic angle of R_track^T R_true, so a front/back flip counts), and whether its
   ``heading_confidence`` was >= ``CONFIDENT_HEADING`` (a model without a front/back head gives NaN
   confidences, which never count);
-- the pipeline's best detection against the annotated keypoints (for AP^kp).
+- the pipeline's best detection against the annotated keypoints (for AP^kp);
+- why a frame without the drone's track missed it, the first that holds of: a published track
+  on the drone's line of sight at a wrong range (``missed_wrong_range``), a tentative track on it
+  that was not confirmed (``missed_unconfirmed``), nothing on it at all (``missed_unseen``);
+- whether the front/back classifier favoured the right order for the best detection, where that
+  detection is the drone's and its keypoints are near one order and clearly not the other
+  (``front_back_right``): the classifier's word per frame, apart from what the tracker made of it.
 
 Every frame of a drone-free sequence is scored; frames of a drone sequence without an annotation
 (the drone out of view) are not.
@@ -25,7 +31,7 @@ Every frame of a drone-free sequence is scored; frames of a drone sequence witho
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -34,19 +40,23 @@ import numpy as np
 from dronekey.evaluation.pose import published_track_rank, sequence_spec
 from dronekey.evaluation.robustness.dither import FrameDither
 from dronekey.geometry.rotations import geodesic_angle_deg, quat_wxyz_to_matrix
+from dronekey.perception.keypoint_order import HEADING_TWIN
 from dronekey.pipeline import TrackingPipeline
 from dronekey.sim_replay.annotations import SequenceAnnotations
 from dronekey.sim_replay.io.frames import iter_frames
-from dronekey.types import PUBLISHED_STATUSES
+from dronekey.types import PUBLISHED_STATUSES, KeypointDetection, Track, TrackStatus
 
 __all__ = [
     "CONFIDENT_HEADING",
     "LINE_OF_SIGHT_FACTOR",
     "MATCH_GATE_FRACTION",
     "MATCH_GATE_M",
+    "ORDER_DECIDED",
     "WRONG_HEADING_DEG",
     "SequenceScores",
+    "front_back_verdict",
     "match_gate_m",
+    "miss_reason",
     "score_sequence",
 ]
 
@@ -55,6 +65,10 @@ MATCH_GATE_FRACTION = 0.25
 WRONG_HEADING_DEG = 90.0
 CONFIDENT_HEADING = 0.5
 LINE_OF_SIGHT_FACTOR = 2.0
+# A detection's keypoint order is decided when its mean error to the nearer of the true order and
+# its front/back twin is below this fraction of the error to the other (as the classifier's
+# training data decides it, ``dronekey.training.heading_data``)
+ORDER_DECIDED = 0.6
 
 
 def match_gate_m(t_true: np.ndarray) -> float:
@@ -83,6 +97,41 @@ def on_line_of_sight(t_track: np.ndarray, t_true: np.ndarray, drone_radius_m: fl
     return angle <= LINE_OF_SIGHT_FACTOR * float(np.arctan2(drone_radius_m, nb))
 
 
+def miss_reason(tracks: Sequence[Track], t_true: np.ndarray, drone_radius_m: float) -> str:
+    """Why a frame has no drone's track, given every track of the frame and the drone's true
+    position ``t_true`` (camera frame, m): "wrong_range" (a published track on the drone's line of
+    sight: the frame has no drone's track, so it is beyond the match gate), "unconfirmed" (a
+    tentative track on it) or "unseen" (no track on it)."""
+    on_sight = [
+        tr
+        for tr in tracks
+        if tr.status is not TrackStatus.LOST and on_line_of_sight(tr.position_m, t_true, drone_radius_m)
+    ]
+    if any(tr.status in PUBLISHED_STATUSES for tr in on_sight):
+        return "wrong_range"
+    return "unconfirmed" if any(tr.status is TrackStatus.TENTATIVE for tr in on_sight) else "unseen"
+
+
+def front_back_verdict(detection: KeypointDetection | None, kp_true: np.ndarray) -> float:
+    """1.0 where ``detection``'s front/back probability favours the true order (``kp_true``, (4, 2)
+    pixels in the spec's order), 0.0 where it favours the twin; NaN without a detection of this
+    drone (centroid farther than half the true keypoints' extent), without an answer (NaN or 0.5),
+    or where the detection's keypoints are not clearly nearer one order (``ORDER_DECIDED``)."""
+    if detection is None or not np.isfinite(detection.heading_p) or detection.heading_p == 0.5:
+        return float("nan")
+    kp = np.asarray(detection.keypoints_px, dtype=np.float64)
+    truth = np.asarray(kp_true, dtype=np.float64)
+    extent = float(np.ptp(truth, axis=0).max())
+    if np.linalg.norm(kp.mean(axis=0) - truth.mean(axis=0)) > 0.5 * extent:
+        return float("nan")
+    err = float(np.linalg.norm(kp - truth, axis=1).mean())
+    err_twin = float(np.linalg.norm(kp[HEADING_TWIN] - truth, axis=1).mean())
+    if min(err, err_twin) >= ORDER_DECIDED * max(err, err_twin):
+        return float("nan")
+    p_true_order = detection.heading_p if err < err_twin else 1.0 - detection.heading_p
+    return 1.0 if p_true_order > 0.5 else 0.0
+
+
 def _stack(rows: list, shape: tuple[int, ...], dtype=np.float64) -> np.ndarray:
     return np.asarray(rows, dtype=dtype).reshape(len(rows), *shape)
 
@@ -106,6 +155,11 @@ class SequenceScores:
     kp_pred, kp_true : (N, 4, 2) the pipeline's best detection and the annotated keypoints, pixels.
     area : (N,) annotated box area, pixels^2. score : (N,) presence of the detection (0 without).
     has_pred : (N,) a detection exists.
+    missed_wrong_range, missed_unconfirmed, missed_unseen : (N,) why a frame without the drone's
+        track missed it (the module's notes); with ``detected`` exactly one of the four holds.
+    front_back_right : (N,) 1.0 where the front/back classifier favoured the true order for the
+        drone's detection, 0.0 where it favoured the twin, NaN where it was not asked, answered
+        0.5, or the detection is not the drone's or its order is undecided.
     fps : frames per second of the pipeline alone (all frames of the sequence).
     """
 
@@ -126,6 +180,10 @@ class SequenceScores:
     area: np.ndarray
     score: np.ndarray
     has_pred: np.ndarray
+    missed_wrong_range: np.ndarray
+    missed_unconfirmed: np.ndarray
+    missed_unseen: np.ndarray
+    front_back_right: np.ndarray
     fps: float = float("nan")
 
     @property
@@ -201,6 +259,8 @@ def score_sequence(
             "area",
             "score",
             "has_pred",
+            "miss",
+            "front_back",
         )
     }
     false_ids: set[int] = set()
@@ -236,6 +296,9 @@ def score_sequence(
         rows["off_sight"].append(bool(off_sight))
         mine = [tr for tr, ok in zip(published, is_drone, strict=True) if ok]
         best = min(mine, key=published_track_rank) if mine else None
+        rows["miss"].append(
+            None if best is not None else miss_reason(out.tracks, ann.translation, drone_radius_m)
+        )
         rows["false"].append(not all(is_drone))
         rows["detected"].append(best is not None)
         rows["R_true"].append(ann.rotation)
@@ -257,6 +320,7 @@ def score_sequence(
         rows["has_pred"].append(det is not None)
         rows["kp_pred"].append(det.keypoints_px if det is not None else np.zeros((4, 2)))
         rows["score"].append(det.presence if det is not None else 0.0)
+        rows["front_back"].append(front_back_verdict(det, ann.keypoints_px))
     return SequenceScores(
         no_drone=no_drone,
         false_frame=_stack(rows["false"], (), bool),
@@ -275,5 +339,9 @@ def score_sequence(
         area=_stack(rows["area"], ()),
         score=_stack(rows["score"], ()),
         has_pred=_stack(rows["has_pred"], (), bool),
+        missed_wrong_range=_stack([m == "wrong_range" for m in rows["miss"]], (), bool),
+        missed_unconfirmed=_stack([m == "unconfirmed" for m in rows["miss"]], (), bool),
+        missed_unseen=_stack([m == "unseen" for m in rows["miss"]], (), bool),
+        front_back_right=_stack(rows["front_back"], ()),
         fps=n / proc_s if proc_s > 0 else float("nan"),
     )

@@ -16,7 +16,14 @@ Per sequence and per group (a frame-weighted average over the scored frames, ``s
 - confident wrong heading %: annotated frames whose drone's track has a wrong heading with
   confidence, percent of the annotated frames; ``wrong_heading_pct`` is the same share at any
   confidence; ``confident_right_heading_pct`` the share whose track is right and says so (what the
-  pipeline's doubt costs: never being sure would make the confident-wrong share 0).
+  pipeline's doubt costs: never being sure would make the confident-wrong share 0);
+- why frames were missed, percent of the annotated frames (with detected % they add up to 100):
+  the drone read at a wrong range by a published track, held by a tentative track that was not
+  confirmed, or not held at all;
+- front/back per detection: of the frames whose best detection is the drone's with a decided
+  keypoint order and an answer from the front/back classifier, the percent where it favoured the
+  true order. The tracker adds these answers up, so this says whether a wrong heading is the
+  classifier's or the tracker's.
 """
 
 from __future__ import annotations
@@ -47,9 +54,10 @@ def summarise(scores: Sequence[SequenceScores]) -> dict:
     ``off_sight_track_frames``, ``off_sight_tracks_per_1000_frames``, ``off_sight_track_ids`` (the false
     tracks off the drone's line of sight),
     ``confident_wrong_heading_frames``, ``confident_wrong_heading_pct``, ``wrong_heading_frames``,
-    ``wrong_heading_pct`` (any confidence), ``confident_right_heading_frames`` and
-    ``confident_right_heading_pct``; figures that need a drone sequence are None without
-    one, and a figure with no frame to average is None.
+    ``wrong_heading_pct`` (any confidence), ``confident_right_heading_frames``,
+    ``confident_right_heading_pct``, ``missed_wrong_range_pct``, ``missed_unconfirmed_pct``,
+    ``missed_unseen_pct``, ``front_back_frames`` and ``front_back_right_pct``; figures that need a
+    drone sequence are None without one, and a figure with no frame to average is None.
     """
     frames = sum(s.frames for s in scores)
     false_frames = sum(int(s.false_frame.sum()) for s in scores)
@@ -82,6 +90,11 @@ def summarise(scores: Sequence[SequenceScores]) -> dict:
         "wrong_heading_pct": None,
         "confident_right_heading_frames": None,
         "confident_right_heading_pct": None,
+        "missed_wrong_range_pct": None,
+        "missed_unconfirmed_pct": None,
+        "missed_unseen_pct": None,
+        "front_back_frames": None,
+        "front_back_right_pct": None,
     }
     if not n_ann:
         return out
@@ -95,6 +108,8 @@ def summarise(scores: Sequence[SequenceScores]) -> dict:
     wrong = int(cat("wrong_heading").sum())
     confident_wrong = int(cat("confident_wrong_heading").sum())
     confident_right = int(cat("confident_right_heading").sum())
+    front_back = cat("front_back_right")
+    asked = np.isfinite(front_back)
     out.update(
         detected_frames=int(hit.sum()),
         detected_pct=rounded(_pct(int(hit.sum()), n_ann), 2),
@@ -109,5 +124,10 @@ def summarise(scores: Sequence[SequenceScores]) -> dict:
         wrong_heading_pct=rounded(_pct(wrong, n_ann), 2),
         confident_right_heading_frames=confident_right,
         confident_right_heading_pct=rounded(_pct(confident_right, n_ann), 2),
+        missed_wrong_range_pct=rounded(_pct(int(cat("missed_wrong_range").sum()), n_ann), 2),
+        missed_unconfirmed_pct=rounded(_pct(int(cat("missed_unconfirmed").sum()), n_ann), 2),
+        missed_unseen_pct=rounded(_pct(int(cat("missed_unseen").sum()), n_ann), 2),
+        front_back_frames=int(asked.sum()),
+        front_back_right_pct=rounded(_pct(int(front_back[asked].sum()), int(asked.sum())), 2),
     )
     return out
