@@ -3,8 +3,10 @@
 Three steps, each resumable: shards of labelled patches per training seed (one process per seed,
 ``dronekey.training.heading_data``), the same for the validation seed, then training and export
 (``dronekey.training.heading_train``). Shards already in ``--out/data`` are kept, so a stopped run
-starts again where it stopped and ``--shards`` can be raised later. Bad arguments are one-line
-errors (exit status 2); Ctrl-C stops with status 130.
+starts again where it stopped and ``--shards`` can be raised later; training goes on from its
+last checkpoint in ``--out`` (every 1,000 steps) when the recipe and the number of steps are the
+same (other data or ``--epochs``: a new run). Bad arguments are one-line errors (exit status 2);
+Ctrl-C stops with status 130.
 """
 
 from __future__ import annotations
@@ -65,7 +67,7 @@ def main(argv: list[str] | None = None) -> int:
             len(val[1]),
         )
         recipe = HeadingRecipe(epochs=args.epochs)
-        model, history = train_heading(train, val, out, recipe, progress=True)
+        model, history = train_heading(train, val, out, recipe, progress=True, resume=True)
     except KeyboardInterrupt:
         print("dronekey-train-heading: stopped; run the same command again to resume", file=sys.stderr)
         return 130

@@ -52,9 +52,12 @@ def train_heading(
     out: str | Path,
     recipe: PatchRecipe | None = None,
     progress: bool = False,
+    resume: bool = False,
 ) -> tuple[Antisymmetric, list[dict]]:
-    """Train on ``train`` (patches, labels), validate on ``val`` every 1,000 steps and at the end,
-    keep ``out/last.pt`` and ``out/history.json``; returns the antisymmetric model and the history."""
+    """Train on ``train`` (patches, labels), validate on ``val`` every ``recipe.validate_every``
+    steps and at the end, keep ``out/last.pt``, ``out/history.json`` and the run's state
+    (``resume``: go on from it; ``patch_train.train_patch_classifier``); returns the antisymmetric
+    model and the history."""
     recipe = recipe or PatchRecipe()
     patches, labels = train
     if len(patches) < recipe.batch:
@@ -79,6 +82,7 @@ def train_heading(
         turn_flips_label=True,
         desc="front/back classifier",
         progress=progress,
+        resume=resume,
     )
     return model, history
 

@@ -6,6 +6,11 @@ labels smoothed. Every batch is augmented: the patch turned 180 degrees (for the
 classifier its label flips: it is the twin order; for the verifier it does not), mirrored
 left/right (front stays front), colour channels permuted, grey on a fifth, brightness and
 contrast, and shifts of up to 3 px (keypoint noise beyond the network's own).
+
+A run keeps its whole state (weights, optimiser, learning-rate schedule, random streams, history)
+in ``out/state.pt`` at every validation; ``resume=True`` continues a stopped run from there when
+the recipe and the number of steps are the same, so that a run longer than a working session on
+two cores can be finished by the next one, with the weights an uninterrupted run would have.
 """
 
 from __future__ import annotations
@@ -28,9 +33,18 @@ from dronekey import __version__
 from dronekey.perception.patch_classifier import INPUT_NAME, PATCH_SIZE, patches_to_tensor
 from dronekey.training.export import write_metadata
 
-__all__ = ["PatchRecipe", "augment", "export_patch_classifier", "patch_logits", "train_patch_classifier"]
+__all__ = [
+    "STATE_FILE",
+    "PatchRecipe",
+    "augment",
+    "export_patch_classifier",
+    "patch_logits",
+    "train_patch_classifier",
+]
 
 LOG = logging.getLogger(__name__)
+
+STATE_FILE = "state.pt"  # in a run's folder: everything a stopped run needs to go on
 
 
 @dataclass(frozen=True)
@@ -43,6 +57,7 @@ class PatchRecipe:
     weight_decay: float = 1e-4
     label_smoothing: float = 0.02
     seed: int = 0
+    validate_every: int = 1000  # steps between validations, each also a checkpoint (out/state.pt)
 
 
 def patch_logits(model: nn.Module, patches: np.ndarray, batch: int = 1024) -> np.ndarray:
@@ -94,10 +109,13 @@ def train_patch_classifier(
     turn_flips_label: bool,
     desc: str,
     progress: bool = False,
+    resume: bool = False,
 ) -> list[dict]:
     """Train ``net`` (the one-logit CNN inside the exported ``model`` wrapper) for ``steps``
     batches that ``draw(rng, batch)`` returns as (uint8 patches, labels); ``validate(model)``
-    every 1,000 steps and at the end; keep ``out/last.pt`` and ``out/history.json``. Returns the
+    every ``recipe.validate_every`` steps and at the end; keep ``out/last.pt``,
+    ``out/history.json`` and the run's state (``STATE_FILE``). ``resume``: go on from that state
+    when it is of the same recipe and number of steps (else start anew, and say why). Returns the
     history."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -107,9 +125,19 @@ def train_patch_classifier(
     opt = torch.optim.AdamW(net.parameters(), lr=recipe.lr, weight_decay=recipe.weight_decay)
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=recipe.lr, total_steps=steps, pct_start=0.05)
     history: list[dict] = []
-    t0 = time.time()
+    start = 0
+    if resume and (saved := _saved_state(out / STATE_FILE, recipe, steps)) is not None:
+        net.load_state_dict(saved["net"])
+        opt.load_state_dict(saved["optimizer"])
+        sched.load_state_dict(saved["scheduler"])
+        g.set_state(saved["generator"])
+        torch.set_rng_state(saved["torch_rng"])
+        rng.bit_generator.state = saved["numpy_rng"]
+        history, start = saved["history"], saved["step"]
+        LOG.info("resuming %s at step %d of %d", out, start, steps)
+    t0 = time.time() - (history[-1]["seconds"] if history else 0)
     smooth = recipe.label_smoothing
-    for step in tqdm(range(steps), desc=desc, disable=not progress):
+    for step in tqdm(range(start, steps), desc=desc, initial=start, total=steps, disable=not progress):
         patches, labels = draw(rng, recipe.batch)
         x, y = augment(
             torch.from_numpy(patches_to_tensor(patches)), torch.from_numpy(labels), g, turn_flips_label
@@ -120,7 +148,7 @@ def train_patch_classifier(
         loss.backward()
         opt.step()
         sched.step()
-        if (step + 1) % 1000 == 0 or step + 1 == steps:
+        if (step + 1) % recipe.validate_every == 0 or step + 1 == steps:
             entry = {"step": step + 1, "seconds": round(time.time() - t0), "loss": float(loss.detach())}
             entry.update(validate(model))
             history.append(entry)
@@ -129,8 +157,42 @@ def train_patch_classifier(
                 {"model": net.state_dict(), "recipe": asdict(recipe), "step": step + 1}, out / "last.pt"
             )
             (out / "history.json").write_text(json.dumps(history, indent=1))
+            state = {
+                "net": net.state_dict(),
+                "optimizer": opt.state_dict(),
+                "scheduler": sched.state_dict(),
+                "generator": g.get_state(),
+                "torch_rng": torch.get_rng_state(),
+                "numpy_rng": rng.bit_generator.state,
+                "history": history,
+                "step": step + 1,
+                "steps": steps,
+                "recipe": asdict(recipe),
+            }
+            partial = out / (STATE_FILE + ".partial")  # a run stopped while writing keeps the last one
+            torch.save(state, partial)
+            partial.replace(out / STATE_FILE)
     model.eval()
     return history
+
+
+def _saved_state(path: Path, recipe: PatchRecipe, steps: int) -> dict | None:
+    """The run state in ``path`` if it is of ``recipe`` and ``steps``; None (and why, logged) if not."""
+    if not path.is_file():
+        LOG.info("nothing to resume in %s; starting a new run", path.parent)
+        return None
+    saved = torch.load(path, weights_only=False)
+    if saved["recipe"] != asdict(recipe) or saved["steps"] != steps:
+        LOG.warning(
+            "%s is of another run (recipe %s, %d steps; now %s, %d steps): starting a new run",
+            path,
+            saved["recipe"],
+            saved["steps"],
+            asdict(recipe),
+            steps,
+        )
+        return None
+    return saved
 
 
 def export_patch_classifier(

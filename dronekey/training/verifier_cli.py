@@ -4,8 +4,9 @@ Three steps, each resumable: shards of the keypoint network's detections on most
 rendered crops per training seed (one process per seed, ``dronekey.training.verifier_data``), the
 same for the validation seed, then training and export (``dronekey.training.verifier_train``).
 Shards already in ``--out/data`` are kept, so a stopped run starts again where it stopped and
-``--shards`` can be raised later. Bad arguments are one-line errors (exit status 2); Ctrl-C stops
-with status 130.
+``--shards`` can be raised later; training goes on from its last checkpoint in ``--out`` (every
+1,000 steps) when the recipe and the number of steps are the same (other data or ``--epochs``: a
+new run). Bad arguments are one-line errors (exit status 2); Ctrl-C stops with status 130.
 """
 
 from __future__ import annotations
@@ -71,7 +72,7 @@ def main(argv: list[str] | None = None) -> int:
             len(val[1]),
             int((val[1] < 0.5).sum()),
         )
-        model, history = train_verifier(train, val, out, recipe, progress=True)
+        model, history = train_verifier(train, val, out, recipe, progress=True, resume=True)
     except KeyboardInterrupt:
         print("dronekey-train-verifier: stopped; run the same command again to resume", file=sys.stderr)
         return 130

@@ -61,10 +61,12 @@ def train_verifier(
     out: str | Path,
     recipe: PatchRecipe | None = None,
     progress: bool = False,
+    resume: bool = False,
 ) -> tuple[Symmetric, list[dict]]:
     """Train on ``train`` (patches, labels, presence) in batches balanced between drones and
-    drone-free patches; validate on ``val`` every 1,000 steps and at the end; keep
-    ``out/last.pt`` and ``out/history.json``. Returns the symmetric model and the history."""
+    drone-free patches; validate on ``val`` every ``recipe.validate_every`` steps and at the end;
+    keep ``out/last.pt``, ``out/history.json`` and the run's state (``resume``: go on from it;
+    ``patch_train.train_patch_classifier``). Returns the symmetric model and the history."""
     recipe = recipe or VERIFIER_RECIPE
     patches, labels, _ = train
     drones, free = np.flatnonzero(labels > 0.5), np.flatnonzero(labels <= 0.5)
@@ -93,6 +95,7 @@ def train_verifier(
         turn_flips_label=False,
         desc="drone verifier",
         progress=progress,
+        resume=resume,
     )
     return model, history
 

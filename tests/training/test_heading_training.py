@@ -3,9 +3,13 @@ keypoint network's own keypoints, a short training run, the ONNX export, and the
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
+import pytest
 import torch
 
+import dronekey.training.patch_train as patch_train
 from dronekey.nn.heading_net import Antisymmetric, HeadingNet
 from dronekey.perception.heading_model import HeadingModel
 from dronekey.training.heading_cli import main as heading_main
@@ -33,14 +37,19 @@ def test_shards_label_the_networks_order_against_the_truth(tmp_path):
     assert len(patches) == len(labels) > 10
 
 
-def test_train_export_and_load(tmp_path):
+def _toy_task(n: int = 512) -> tuple[np.ndarray, np.ndarray]:
+    """A toy task with the real shapes: a bright blob at the top (label 1) or at the bottom (0)."""
     rng = np.random.default_rng(0)
-    # a toy task with the real shapes: a bright blob at the top (label 1) or at the bottom (0)
-    patches = np.full((512, 64, 64, 3), 90, np.uint8)
-    labels = rng.integers(0, 2, 512).astype(np.float32)
+    patches = np.full((n, 64, 64, 3), 90, np.uint8)
+    labels = rng.integers(0, 2, n).astype(np.float32)
     for p, y in zip(patches, labels, strict=True):
         row = 12 if y else 44
         p[row : row + 8, 28:36] = 230
+    return patches, labels
+
+
+def test_train_export_and_load(tmp_path):
+    patches, labels = _toy_task()
     model, history = train_heading(
         (patches, labels), (patches[:128], labels[:128]), tmp_path, HeadingRecipe(epochs=3, batch=64)
     )
@@ -57,3 +66,37 @@ def test_cli_refuses_a_validation_seed_it_trains_on(capsys):
     assert heading_main(["--seeds", "3", "--val-seed", "3"]) == 2
     assert "also a training seed" in capsys.readouterr().err
     assert heading_main(["--shards", "0"]) == 2
+
+
+def test_a_stopped_run_goes_on_to_the_weights_an_uninterrupted_run_has(tmp_path, monkeypatch, caplog):
+    patches, labels = _toy_task(256)
+    data, val = (patches, labels), (patches[:64], labels[:64])
+    recipe = HeadingRecipe(epochs=2, batch=64, validate_every=3)  # 8 steps, checkpoints at 3 and 6
+    whole, whole_history = train_heading(data, val, tmp_path / "whole", recipe)
+
+    augment, calls = patch_train.augment, []
+
+    def stop_in_step_5(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 5:
+            raise KeyboardInterrupt
+        return augment(*args, **kwargs)
+
+    monkeypatch.setattr(patch_train, "augment", stop_in_step_5)
+    with pytest.raises(KeyboardInterrupt):
+        train_heading(data, val, tmp_path / "stopped", recipe)
+    monkeypatch.setattr(patch_train, "augment", augment)
+    with caplog.at_level(logging.INFO, logger="dronekey.training.patch_train"):
+        resumed, history = train_heading(data, val, tmp_path / "stopped", recipe, resume=True)
+    assert "at step 3 of 8" in caplog.text
+    assert [h["step"] for h in history] == [h["step"] for h in whole_history] == [3, 6, 8]
+    for name, tensor in whole.state_dict().items():
+        torch.testing.assert_close(resumed.state_dict()[name], tensor, rtol=0, atol=0)
+
+    # Another recipe (here twice the epochs) is another run: it starts anew and says why.
+    caplog.clear()
+    with caplog.at_level(logging.INFO, logger="dronekey.training.patch_train"):
+        _, longer = train_heading(
+            data, val, tmp_path / "stopped", HeadingRecipe(epochs=4, batch=64), resume=True
+        )
+    assert "starting a new run" in caplog.text and longer[-1]["step"] == 16
