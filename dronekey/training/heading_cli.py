@@ -20,7 +20,7 @@ from pathlib import Path
 
 from dronekey.training.heading_data import SHARD_SIZE, load_shards, write_shards
 from dronekey.training.heading_train import HeadingRecipe, export_heading_model, train_heading
-from dronekey.training.patch_cli import add_patch_arguments, patch_usage_error, render_shards
+from dronekey.training.patch_cli import RESUME_NOTE, add_patch_arguments, patch_usage_error, render_shards
 
 __all__ = ["build_parser", "main"]
 
@@ -32,7 +32,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="dronekey-train-heading",
         description="Train the front/back classifier on the keypoint network's own keypoints over "
-        "rendered drones (docs/model.md, 'Front/back classifier'), and export it to ONNX.",
+        "rendered drones (docs/model.md, 'Front/back classifier'), and export it to ONNX." + RESUME_NOTE,
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     p.add_argument("--out", default="runs/heading", help="folder for data shards, checkpoint, history, model")

@@ -12,7 +12,13 @@ import torch
 
 from dronekey.training.patch_shards import write_seeds_in_parallel
 
-__all__ = ["add_patch_arguments", "patch_usage_error", "render_shards"]
+__all__ = ["RESUME_NOTE", "add_patch_arguments", "patch_usage_error", "render_shards"]
+
+# The end of both commands' --help description
+RESUME_NOTE = (
+    " A stopped run resumes: run the same command again (shards in OUT/data are kept, and training "
+    "goes on from OUT/state.pt, written every 1,000 steps, when the data and --epochs are the same)."
+)
 
 
 def add_patch_arguments(

@@ -18,7 +18,7 @@ import sys
 from dataclasses import asdict, replace
 from pathlib import Path
 
-from dronekey.training.patch_cli import add_patch_arguments, patch_usage_error, render_shards
+from dronekey.training.patch_cli import RESUME_NOTE, add_patch_arguments, patch_usage_error, render_shards
 from dronekey.training.patch_shards import SHARD_SIZE
 from dronekey.training.verifier_data import NEGATIVE_FRACTION, load_verifier_shards, write_verifier_shards
 from dronekey.training.verifier_train import VERIFIER_RECIPE, export_verifier, train_verifier
@@ -33,7 +33,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="dronekey-train-verifier",
         description="Train the drone verifier (docs/model.md, 'Drone verifier') on the keypoint "
-        "network's own detections of rendered drones and drone-free clutter, and export it to ONNX.",
+        "network's own detections of rendered drones and drone-free clutter, and export it to ONNX."
+        + RESUME_NOTE,
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     p.add_argument(
