@@ -121,38 +121,38 @@ class RobustnessReport:
             lines.append(
                 "(the model has no front/back head: heading_confidence is NaN, conf>90 is 0 by definition)"
             )
-        lines += self._rows(_COLUMNS, drone_free=True)
+        rows = [(by, value, summarise([s.scores for s in seqs])) for by, value, seqs in self.groups()]
+        lines += _table_lines(_COLUMNS, rows)
         lines += [
             "",
             "frames without the drone's track: read at a wrong range, held but not confirmed, not held;"
             " the front/back classifier per detection of the drone",
-            *self._rows(_MISS_COLUMNS, drone_free=False),
+            *_table_lines(_MISS_COLUMNS, [r for r in rows if r[0] != "drone-free"]),
         ]
         return "\n".join(lines)
 
-    def _rows(self, columns: tuple, drone_free: bool) -> list[str]:
-        """Header, units, rule and a line per group of one table of ``columns``."""
-        label_w = 24
-        widths = [max(len(h), len(u), 6) for h, u, _, _ in columns]
-        head = f"{'group':<{label_w}}" + "".join(
-            f" {h:>{w}}" for (h, _, _, _), w in zip(columns, widths, strict=True)
-        )
-        units = f"{'':<{label_w}}" + "".join(
-            f" {u:>{w}}" for (_, u, _, _), w in zip(columns, widths, strict=True)
-        )
-        lines = [head, units, "-" * len(head)]
-        previous = None
-        for by, value, seqs in self.groups():
-            if by == "drone-free" and not drone_free:
-                continue
-            if previous is not None and by != previous:
-                lines.append("")
-            previous = by
-            summary = summarise([s.scores for s in seqs])
-            label = value if by in ("all", "drone-free") else f"{by} {value}"
-            cells = []
-            for (_, _, key, fmt), w in zip(columns, widths, strict=True):
-                v = summary[key]
-                cells.append(f" {'-' if v is None else fmt.format(v):>{w}}")
-            lines.append(f"{label:<{label_w}}" + "".join(cells))
-        return lines
+
+def _table_lines(columns: tuple, rows: list[tuple[str, str, dict]]) -> list[str]:
+    """Header, units, rule and a line per ``(by, value, summary)`` row of one table of ``columns``;
+    the groups are summarised once for both tables."""
+    label_w = 24
+    widths = [max(len(h), len(u), 6) for h, u, _, _ in columns]
+    head = f"{'group':<{label_w}}" + "".join(
+        f" {h:>{w}}" for (h, _, _, _), w in zip(columns, widths, strict=True)
+    )
+    units = f"{'':<{label_w}}" + "".join(
+        f" {u:>{w}}" for (_, u, _, _), w in zip(columns, widths, strict=True)
+    )
+    lines = [head, units, "-" * len(head)]
+    previous = None
+    for by, value, summary in rows:
+        if previous is not None and by != previous:
+            lines.append("")
+        previous = by
+        label = value if by in ("all", "drone-free") else f"{by} {value}"
+        cells = []
+        for (_, _, key, fmt), w in zip(columns, widths, strict=True):
+            v = summary[key]
+            cells.append(f" {'-' if v is None else fmt.format(v):>{w}}")
+        lines.append(f"{label:<{label_w}}" + "".join(cells))
+    return lines
