@@ -94,14 +94,16 @@ class RobustnessReport:
             rows.append(("drone-free", "drone-free", free))
         return [r for r in rows if r[2]]
 
+    def group_summaries(self) -> list[tuple[str, str, dict]]:
+        """``(by, value, summary)`` of every row (``groups``), ``summary`` from ``summarise``: what
+        both the table and the JSON report."""
+        return [(by, value, summarise([s.scores for s in seqs])) for by, value, seqs in self.groups()]
+
     def to_dict(self) -> dict:
-        """The settings, every table row (``groups``) and every sequence, JSON-ready."""
+        """The settings, every table row (``group_summaries``) and every sequence, JSON-ready."""
         return {
             "settings": self.settings,
-            "groups": [
-                {"by": by, "value": value, **summarise([s.scores for s in seqs])}
-                for by, value, seqs in self.groups()
-            ],
+            "groups": [{"by": by, "value": v, **summary} for by, v, summary in self.group_summaries()],
             "sequences": [s.to_dict() for s in self.sequences],
         }
 
@@ -121,7 +123,7 @@ class RobustnessReport:
             lines.append(
                 "(the model has no front/back head: heading_confidence is NaN, conf>90 is 0 by definition)"
             )
-        rows = [(by, value, summarise([s.scores for s in seqs])) for by, value, seqs in self.groups()]
+        rows = self.group_summaries()
         lines += _table_lines(_COLUMNS, rows)
         lines += [
             "",
