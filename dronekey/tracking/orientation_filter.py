@@ -1,4 +1,4 @@
-"""Error-state (multiplicative) Kalman filter on a 3D orientation with constant angular velocity.
+"""Error-state (multiplicative) Kalman filter on a 3D orientation with a (damped) angular velocity.
 
 Filtering a rotation with a linear Kalman filter on Euler angles or quaternion components jumps at
 +-180 deg and at quaternion sign flips. Here the orientation is split into a reference rotation
@@ -8,7 +8,12 @@ A filterpy Kalman filter runs on x = [d_theta (3, rad), omega (3, rad/s)] with o
 angular velocity:
 
 - predict: d_theta += omega dt (constant angular velocity), process noise from a white angular
-  acceleration of standard deviation ``angular_accel_std_radps2`` (filterpy's discrete model);
+  acceleration of standard deviation ``angular_accel_std_radps2`` (filterpy's discrete model); or,
+  with a time constant ``tau`` (``angular_velocity_tau_s``), omega relaxes toward zero as a
+  first-order Gauss-Markov process, ``omega <- a omega`` with ``a = exp(-dt / tau)`` and
+  ``d_theta += tau (1 - a) omega``: a drone does not keep spinning, so a run of poor rotation
+  readings cannot wind up an angular velocity that then turns the track on its own (the process
+  noise keeps the white-acceleration model, close for steps much shorter than ``tau``);
 - measurement R_meas: z = log(R_ref^T R_meas), a rotation vector that stays small while the filter
   follows the drone, whatever the absolute angles are;
 - after each predict and update the error is folded into the reference,
@@ -41,9 +46,16 @@ def rotation_log(R: np.ndarray) -> np.ndarray:
     return cv2.Rodrigues(np.asarray(R, dtype=np.float64))[0].ravel()
 
 
-def _transition(dt: float) -> np.ndarray:
+def _transition(dt: float, tau: float = 0.0) -> np.ndarray:
+    """State transition over ``dt`` seconds; ``tau`` (s) the angular velocity's time constant
+    (0: none, constant angular velocity)."""
     F = np.eye(6)
-    F[:3, 3:] = dt * np.eye(3)
+    if tau > 0.0:
+        a = float(np.exp(-dt / tau))
+        F[:3, 3:] = tau * (1.0 - a) * np.eye(3)
+        F[3:, 3:] = a * np.eye(3)
+    else:
+        F[:3, 3:] = dt * np.eye(3)
     return F
 
 
@@ -56,6 +68,8 @@ class OrientationFilter:
     rotation_cov_cam : (3, 3) its covariance as a camera-frame rotation vector, rad^2.
     angular_velocity_std_radps : prior standard deviation of each angular velocity component.
     angular_accel_std_radps2 : standard deviation of the white angular acceleration.
+    angular_velocity_tau_s : time constant (s) with which the angular velocity relaxes toward zero;
+        0 (the default): none, constant angular velocity.
     """
 
     def __init__(
@@ -64,8 +78,12 @@ class OrientationFilter:
         rotation_cov_cam: np.ndarray,
         angular_velocity_std_radps: float,
         angular_accel_std_radps2: float,
+        angular_velocity_tau_s: float = 0.0,
     ) -> None:
+        if not angular_velocity_tau_s >= 0.0:
+            raise ValueError(f"angular_velocity_tau_s must be >= 0 s, got {angular_velocity_tau_s!r}")
         self.angular_accel_std_radps2 = float(angular_accel_std_radps2)
+        self.angular_velocity_tau_s = float(angular_velocity_tau_s)
         self._R_ref = np.asarray(R, dtype=np.float64).copy()
         self._kf = KalmanFilter(dim_x=6, dim_z=3)
         self._kf.x = np.zeros(6)
@@ -113,15 +131,15 @@ class OrientationFilter:
         """Body -> camera rotation after ``dt`` seconds and its covariance (camera-frame rotation
         vector, rad^2), without changing the filter."""
         dt = max(dt, 0.0)
-        R = self._R_ref @ rotation_exp(self._kf.x[:3] + dt * self._kf.x[3:])
-        F = _transition(dt)
+        F = _transition(dt, self.angular_velocity_tau_s)
+        R = self._R_ref @ rotation_exp((F @ self._kf.x)[:3])
         P = F @ self._kf.P @ F.T + (self._process_noise(dt) if dt > 0.0 else 0.0)
         return R, R @ P[:3, :3] @ R.T
 
     def predict(self, dt: float) -> None:
         """Advance the state by ``dt`` seconds (no-op for dt <= 0)."""
         if dt > 0.0:
-            self._kf.predict(F=_transition(dt), Q=self._process_noise(dt))
+            self._kf.predict(F=_transition(dt, self.angular_velocity_tau_s), Q=self._process_noise(dt))
             self._recentre()
 
     def innovation(self, R_meas: np.ndarray, rotation_cov_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

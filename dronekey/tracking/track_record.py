@@ -75,6 +75,7 @@ class TrackRecord:
             cov[3:, 3:],
             config.initial_angular_velocity_std_radps,
             config.angular_accel_std_radps2,
+            config.angular_velocity_tau_s,
         )
         self.score = hit.presence
         self.keypoints_px = keypoints_px
@@ -151,7 +152,11 @@ class TrackRecord:
         """Restart the orientation filter on ``R`` (body -> camera) with the measurement's rotation
         covariance (rad^2), forgetting the gate misses and the IPPE-solution evidence."""
         self.orientation = OrientationFilter(
-            R, rotation_cov, config.initial_angular_velocity_std_radps, config.angular_accel_std_radps2
+            R,
+            rotation_cov,
+            config.initial_angular_velocity_std_radps,
+            config.angular_accel_std_radps2,
+            config.angular_velocity_tau_s,
         )
         self.rotation_misses = 0
         self.branch_evidence = 0.0

@@ -11,6 +11,7 @@ __all__ = ["TrackerConfig"]
 
 _MAY_BE_ZERO = frozenset(
     {
+        "angular_velocity_tau_s",
         "confirm_min_change",
         "confirm_drone_p",
         "heading_from_motion",
@@ -32,6 +33,13 @@ class TrackerConfig:
         steadier range for a small drone whose keypoints are noisy, at the price of some lag on a
         drone that turns hard (docs/evaluation.md, tenth session).
     angular_accel_std_radps2 : the same for the orientation model (rad/s^2).
+    angular_velocity_tau_s : time constant (s) with which a track's angular velocity relaxes toward
+        zero (``dronekey.tracking.orientation_filter``); 0: constant angular velocity. Near
+        edge-on views the keypoints can fit a pose tens of degrees off with a tiny reprojection
+        error; a run of such readings winds up the angular velocity, which then turns the track
+        (to its heading twin, or 90 deg off) on its own, and on through a coast. Off by default:
+        1.0 and 0.5 s were within noise on the tuning seeds (docs/evaluation.md, seventeenth
+        session).
     initial_velocity_std_mps : prior standard deviation of a new track's velocity (m/s).
     initial_angular_velocity_std_radps : the same for its angular velocity (rad/s).
     position_gate_chi2 : a measurement whose squared Mahalanobis position distance to a track
@@ -117,6 +125,7 @@ class TrackerConfig:
 
     accel_std_mps2: float = 2.0
     angular_accel_std_radps2: float = 8.0
+    angular_velocity_tau_s: float = 0.0
     initial_velocity_std_mps: float = 3.0
     initial_angular_velocity_std_radps: float = 2.0
     position_gate_chi2: float = 16.27

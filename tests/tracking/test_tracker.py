@@ -343,6 +343,33 @@ def test_track_carries_score_keypoints_and_a_valid_covariance():
     assert state.orientation_cov.shape == (6, 6)
 
 
+def test_damped_angular_velocity_stops_a_coasting_track_from_spinning():
+    """A track that was turning at 30 deg/s and then goes unmeasured for 2 s: with constant angular
+    velocity its orientation keeps turning (60 deg more); with a 0.5 s time constant it turns at
+    most tau * omega = 15 deg more and stops."""
+
+    def coast(config):
+        tracker = Tracker(config)
+        for k in range(15):
+            tracker.update(t_ns(k), [measurement(seen_from_below(30.0 * k / FPS), [0.0, 0.0, 4.0])])
+        (prediction,) = tracker.predict(t_ns(14 + 60))
+        return geodesic_angle_deg(prediction.R, seen_from_below(14.0 / FPS * 30.0))
+
+    assert coast(TrackerConfig(max_coast_s=5.0)) == pytest.approx(60.0, abs=3.0)
+    assert coast(TrackerConfig(max_coast_s=5.0, angular_velocity_tau_s=0.5)) < 16.0
+
+
+def test_damped_angular_velocity_still_follows_a_measured_turn():
+    """Measured every frame, a 90 deg/s yaw is followed within a few degrees with a 1 s time
+    constant too: the damping pulls the angular velocity toward zero, the measurements hold it."""
+    tracker = Tracker(TrackerConfig(angular_velocity_tau_s=1.0))
+    for k in range(60):
+        reading = measurement(seen_from_below(90.0 * k / FPS), [0.0, 0.0, 4.0])
+        (track,) = live(tracker.update(t_ns(k), [reading]))
+    R_track = quat_wxyz_to_matrix(track.quaternion_wxyz)
+    assert geodesic_angle_deg(R_track, seen_from_below(90.0 * 59 / FPS)) < 3.0
+
+
 def test_predict_does_not_change_the_tracker():
     def run(predict_first: bool):
         tracker = Tracker()
@@ -389,6 +416,7 @@ def test_time_going_backwards_is_refused_and_reset_reports_every_track_lost():
         ("confirm_hits", 0),
         ("confirm_window", 2.5),
         ("branch_confidence_cap", -0.1),
+        ("angular_velocity_tau_s", -0.5),
     ],
 )
 def test_config_errors_name_the_field_and_value(field, value):
