@@ -37,7 +37,7 @@ from dronekey.perception.drone_verifier import load_verifier
 from dronekey.perception.frame_change import frame_change
 from dronekey.perception.heading_model import load_heading_model
 from dronekey.perception.keypoint_model import HEADING_TWIN, KeypointModel
-from dronekey.perception.keypoint_order import KeypointOrder
+from dronekey.perception.keypoint_order import SYMMETRIES, KeypointOrder, front_axis_turn
 from dronekey.perception.localizer import (
     Localizer,
     LocalizerConfig,
@@ -170,7 +170,14 @@ class PoseTracker:
             detection = replace(detection, keypoints_px=twin, heading_p=1.0 - detection.heading_p)
         order = self.order(track_id)
         keypoints, symmetry = order.apply(detection.keypoints_px, predicted)
-        return detection if symmetry == 0 else replace(detection, keypoints_px=keypoints)
+        if symmetry == 0:
+            return detection
+        # The front/back classifier's p is for the order it saw: front and back exchanged, it is
+        # 1 - p for the new one (left and right exchanged, still p).
+        heading_p = detection.heading_p
+        if front_axis_turn(SYMMETRIES[symmetry]) < 0:
+            heading_p = 1.0 - heading_p
+        return replace(detection, keypoints_px=keypoints, heading_p=heading_p)
 
     def measure_detection(
         self, detection: KeypointDetection, prior

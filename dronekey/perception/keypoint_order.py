@@ -21,7 +21,7 @@ from collections import deque
 
 import numpy as np
 
-__all__ = ["HEADING_TWIN", "SYMMETRIES", "KeypointOrder"]
+__all__ = ["HEADING_TWIN", "SYMMETRIES", "KeypointOrder", "front_axis_turn"]
 
 # The keypoint rectangle's symmetries (order 1 FR, 2 RR, 3 RL, 4 FL): identity, front/back,
 # left/right, both (a 180 deg turn).
@@ -29,6 +29,18 @@ SYMMETRIES = ((0, 1, 2, 3), (1, 0, 3, 2), (3, 2, 1, 0), (2, 3, 0, 1))
 # The 180-degree twin (front and back exchanged by a half turn about the body's vertical axis):
 # the symmetry no geometry can tell apart, only the drone's look (the front/back head).
 HEADING_TWIN = list(SYMMETRIES[3])
+
+
+def front_axis_turn(order) -> int:
+    """How a re-ordering (a permutation of the four hubs) turns the front axis (rear hubs' midpoint
+    -> front hubs' midpoint, hubs 1 and 4 at the front): +1 kept (left/right), -1 reversed
+    (front/back, the half turn: the front/back classifier's ``p`` becomes ``1 - p``), 0 a quarter
+    turn or a diagonal reflection (its ``p`` says nothing about the new order's front)."""
+    axis = np.array([1, -1, -1, 1])  # the front axis as weights of the hubs, spec order
+    weights = np.zeros(4)
+    for new_index, old_index in enumerate(order):
+        weights[old_index] += axis[new_index]
+    return int(round(weights @ axis / 4.0))
 
 
 class KeypointOrder:

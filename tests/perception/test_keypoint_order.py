@@ -6,7 +6,7 @@ import pytest
 from dronekey.geometry.camera import CameraModel
 from dronekey.geometry.drone_spec import load_spec
 from dronekey.geometry.rotations import geodesic_angle_deg, rotation_from_euler_deg
-from dronekey.perception.keypoint_order import SYMMETRIES, KeypointOrder
+from dronekey.perception.keypoint_order import HEADING_TWIN, SYMMETRIES, KeypointOrder, front_axis_turn
 from dronekey.pipeline import PoseTracker
 from dronekey.types import KeypointDetection
 
@@ -101,3 +101,41 @@ def test_pose_tracker_measures_through_a_front_back_flip():
     assert max(errors) < 2.0
     track = poses.tracker.predict(round(60 * 1e9 / 30))[0]
     assert geodesic_angle_deg(track.R, truth(2.0)[0]) < 3.0
+
+
+@pytest.mark.parametrize(
+    ("order", "turn"),
+    [
+        (SYMMETRIES[0], 1),  # as it is
+        (SYMMETRIES[FRONT_BACK], -1),  # front and back exchanged: the axis reversed
+        (SYMMETRIES[LEFT_RIGHT], 1),  # left and right exchanged: the front stays the front
+        (tuple(HEADING_TWIN), -1),  # the half turn
+        ((1, 2, 3, 0), 0),  # a quarter turn: the old front axis is now across
+        ((0, 3, 2, 1), 0),  # a reflection about a diagonal
+    ],
+)
+def test_front_axis_turn(order, turn):
+    assert front_axis_turn(order) == turn
+
+
+def test_an_undone_front_back_flip_carries_the_classifiers_word_with_it():
+    """The front/back classifier's p is for the order it saw. When a front/back flip is undone
+    against the track, the front it spoke of is now the back: p becomes 1 - p (a left/right flip
+    keeps p)."""
+    poses = PoseTracker(CAMERA, SPEC, keypoint_sigma_px=0.5)
+    seen = {}
+    for k in range(30):
+        s, t_ns = k / 30, round(k * 1e9 / 30)
+        kp = keypoints(s)
+        symmetry = FRONT_BACK if k == 20 else LEFT_RIGHT if k == 25 else 0
+        prior = poses.prior(t_ns)
+        detection = KeypointDetection(flipped(kp, symmetry), 0.99, (0, 0, 1), heading_p=0.8)
+        det = poses.order_keypoints(detection, prior)
+        np.testing.assert_allclose(det.keypoints_px, kp)
+        seen[k] = det.heading_p
+        meas, _ = poses.measure(det, prior)
+        poses.track(t_ns, meas, det)
+    assert poses.order().reordered == 2
+    assert (
+        seen[20] == pytest.approx(0.2) and seen[25] == pytest.approx(0.8) and seen[19] == pytest.approx(0.8)
+    )
