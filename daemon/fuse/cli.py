@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import sys
 import threading
 
 import zenoh
@@ -237,3 +238,7 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         signals.finished()
     return signals.exit_code or ExitCode.OK
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -189,3 +189,7 @@ def main(argv: list[str] | None = None) -> int:
         f"error {fit.median_abs_error_raw:.3f} -> {fit.median_abs_error_fitted:.3f}; wrote {args.out}"
     )
     return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

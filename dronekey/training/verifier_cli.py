@@ -97,3 +97,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     print(json.dumps({"model": str(path), "validation": final}, indent=1))
     return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
