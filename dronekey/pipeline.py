@@ -37,7 +37,7 @@ from dronekey.perception.drone_verifier import load_verifier
 from dronekey.perception.frame_change import frame_change
 from dronekey.perception.heading_model import load_heading_model
 from dronekey.perception.keypoint_model import HEADING_TWIN, KeypointModel
-from dronekey.perception.keypoint_order import SYMMETRIES, KeypointOrder, front_axis_turn
+from dronekey.perception.keypoint_order import SYMMETRIES, KeypointOrder, reordered
 from dronekey.perception.localizer import (
     Localizer,
     LocalizerConfig,
@@ -164,20 +164,11 @@ class PoseTracker:
             return detection
         predicted = self.camera.project_body(self.spec.keypoints_3d, *prior)
         kp = detection.keypoints_px
-        twin = kp[HEADING_TWIN]
         known = np.isfinite(detection.heading_p)  # without a front/back head, KeypointOrder alone
-        if known and np.abs(twin - predicted).mean() < np.abs(kp - predicted).mean():
-            detection = replace(detection, keypoints_px=twin, heading_p=1.0 - detection.heading_p)
-        order = self.order(track_id)
-        keypoints, symmetry = order.apply(detection.keypoints_px, predicted)
-        if symmetry == 0:
-            return detection
-        # The front/back classifier's p is for the order it saw: front and back exchanged, it is
-        # 1 - p for the new one (left and right exchanged, still p).
-        heading_p = detection.heading_p
-        if front_axis_turn(SYMMETRIES[symmetry]) < 0:
-            heading_p = 1.0 - heading_p
-        return replace(detection, keypoints_px=keypoints, heading_p=heading_p)
+        if known and np.abs(kp[HEADING_TWIN] - predicted).mean() < np.abs(kp - predicted).mean():
+            detection = reordered(detection, HEADING_TWIN)
+        _, symmetry = self.order(track_id).apply(detection.keypoints_px, predicted)
+        return detection if symmetry == 0 else reordered(detection, SYMMETRIES[symmetry])
 
     def measure_detection(
         self, detection: KeypointDetection, prior

@@ -18,10 +18,13 @@ one that is flipped, detections pass unchanged and the tracker's gating and life
 from __future__ import annotations
 
 from collections import deque
+from dataclasses import replace
 
 import numpy as np
 
-__all__ = ["HEADING_TWIN", "SYMMETRIES", "KeypointOrder", "front_axis_turn"]
+from dronekey.types import KeypointDetection
+
+__all__ = ["HEADING_TWIN", "SYMMETRIES", "KeypointOrder", "front_axis_turn", "reordered"]
 
 # The keypoint rectangle's symmetries (order 1 FR, 2 RR, 3 RL, 4 FL): identity, front/back,
 # left/right, both (a 180 deg turn).
@@ -41,6 +44,16 @@ def front_axis_turn(order) -> int:
     for new_index, old_index in enumerate(order):
         weights[old_index] += axis[new_index]
     return int(round(weights @ axis / 4.0))
+
+
+def reordered(detection: KeypointDetection, order) -> KeypointDetection:
+    """``detection`` with its keypoints in ``order`` (new keypoint i = old ``order[i]``) and the
+    front/back classifier's ``heading_p``, which speaks of the order it saw, carried with its
+    front: ``1 - p`` where the front axis reverses (the heading twin, a front/back exchange)."""
+    heading_p = detection.heading_p
+    if front_axis_turn(order) < 0:
+        heading_p = 1.0 - heading_p
+    return replace(detection, keypoints_px=detection.keypoints_px[list(order)], heading_p=heading_p)
 
 
 class KeypointOrder:

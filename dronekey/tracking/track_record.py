@@ -65,18 +65,12 @@ class TrackRecord:
         self.misses = 0  # update calls since the last hit
         self.still_hits = 0  # hits in a row whose pixels changed less than confirm_min_change
         self.window: deque[bool] = deque([True], maxlen=config.confirm_window)
-        self.rotation_misses = 0
-        self.branch_evidence = 0.0  # log-odds that the IPPE solution not followed is the right one
         self.position = ConstantVelocityFilter(
             measurement.t, cov[:3, :3], config.initial_velocity_std_mps, config.accel_std_mps2
         )
-        self.orientation = OrientationFilter(
-            measurement.R,
-            cov[3:, 3:],
-            config.initial_angular_velocity_std_radps,
-            config.angular_accel_std_radps2,
-            config.angular_velocity_tau_s,
-        )
+        # orientation, rotation_misses and branch_evidence (log-odds that the IPPE solution not
+        # followed is the right one), as a restart sets them
+        self.reinitialise_orientation(measurement.R, cov[3:, 3:], config)
         self.score = hit.presence
         self.keypoints_px = keypoints_px
         self.reprojection_px = float(measurement.reprojection_px)
