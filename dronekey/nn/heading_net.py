@@ -21,26 +21,35 @@ __all__ = ["Antisymmetric", "HeadingNet", "Symmetric"]
 
 
 class HeadingNet(nn.Module):
-    """Four 3x3 conv blocks (stride 2, then 2x2 max-pools: 64 -> 4 px), flatten, MLP -> one logit.
+    """3x3 conv blocks (stride 2, then 2x2 max-pools: 64 -> 4 px), flatten, MLP -> one logit.
 
     Parameters
     ----------
-    channels : the four blocks' widths.
+    channels : the widths of the four stages (32, 32, 16 and 8 px).
     patch_size : input side, px (a multiple of 16).
+    repeats : 3x3 conv blocks in each of the two last stages (16 and 8 px); 1 is the first
+        classifiers' four-conv net, 2 the deeper one the front/back classifier ships with since the
+        eighteenth session (docs/model.md).
     """
 
-    def __init__(self, channels: tuple[int, int, int, int] = (16, 32, 64, 96), patch_size: int = 64) -> None:
+    def __init__(
+        self, channels: tuple[int, int, int, int] = (16, 32, 64, 96), patch_size: int = 64, repeats: int = 1
+    ) -> None:
         super().__init__()
         if patch_size % 16:
             raise ValueError(f"patch_size must be a multiple of 16, got {patch_size}")
+        if repeats < 1:
+            raise ValueError(f"repeats must be at least 1, got {repeats}")
         c = channels
         self.features = nn.Sequential(
             _block(3, c[0], stride=2),
             _block(c[0], c[1]),
             nn.MaxPool2d(2),
             _block(c[1], c[2]),
+            *(_block(c[2], c[2]) for _ in range(repeats - 1)),
             nn.MaxPool2d(2),
             _block(c[2], c[3]),
+            *(_block(c[3], c[3]) for _ in range(repeats - 1)),
             nn.MaxPool2d(2),
         )
         self.head = nn.Sequential(

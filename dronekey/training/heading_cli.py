@@ -15,11 +15,11 @@ import argparse
 import json
 import logging
 import sys
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 
 from dronekey.training.heading_data import SHARD_SIZE, load_shards, write_shards
-from dronekey.training.heading_train import HeadingRecipe, export_heading_model, train_heading
+from dronekey.training.heading_train import HEADING_RECIPES, export_heading_model, train_heading
 from dronekey.training.patch_cli import RESUME_NOTE, add_patch_arguments, patch_usage_error, render_shards
 
 __all__ = ["build_parser", "main"]
@@ -43,8 +43,15 @@ def build_parser() -> argparse.ArgumentParser:
         shards_help=f"shards of {SHARD_SIZE} rendered crops per training seed",
         val_seed=31099,
         val_shards=6,
-        epochs=HeadingRecipe.epochs,
-        epochs_help="passes over the training patches",
+        epochs=None,
+        epochs_help="passes over the training patches (default: the --net recipe's, 8 small, 4 deep)",
+    )
+    p.add_argument(
+        "--net",
+        choices=sorted(HEADING_RECIPES),
+        default="small",
+        help="the classifier's net: small (four convs, the default shipped one) or deep (six convs, the "
+        "shipped dronekey_heading_deep.onnx: --seeds 31001 31002 31003 31004 --epochs 4)",
     )
     p.add_argument("--export", default=None, help="ONNX file to write (default: OUT/heading.onnx)")
     return p
@@ -66,7 +73,8 @@ def main(argv: list[str] | None = None) -> int:
             100 * train[1].mean(),
             len(val[1]),
         )
-        recipe = HeadingRecipe(epochs=args.epochs)
+        recipe = HEADING_RECIPES[args.net]
+        recipe = replace(recipe, epochs=args.epochs or recipe.epochs)
         model, history = train_heading(train, val, out, recipe, progress=True, resume=True)
     except KeyboardInterrupt:
         print("dronekey-train-heading: stopped; run the same command again to resume", file=sys.stderr)

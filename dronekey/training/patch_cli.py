@@ -28,7 +28,7 @@ def add_patch_arguments(
     shards_help: str,
     val_seed: int,
     val_shards: int,
-    epochs: float,
+    epochs: float | None,
     epochs_help: str,
 ) -> None:
     """Add ``--seeds --shards --val-seed --val-shards --keypoint-model --epochs --threads``."""
@@ -52,7 +52,7 @@ def patch_usage_error(args: argparse.Namespace) -> str | None:
             return f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}"
     if args.val_seed in args.seeds:
         return f"--val-seed {args.val_seed} is also a training seed"
-    if args.epochs <= 0:
+    if args.epochs is not None and args.epochs <= 0:
         return f"--epochs must be > 0, got {args.epochs}"
     if args.threads < 0:
         return f"--threads must be >= 0, got {args.threads}"

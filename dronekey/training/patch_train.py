@@ -49,7 +49,8 @@ STATE_FILE = "state.pt"  # in a run's folder: everything a stopped run needs to 
 
 @dataclass(frozen=True)
 class PatchRecipe:
-    """How long and how fast a patch classifier trains."""
+    """How long and how fast a patch classifier trains, and the size of its net (``HeadingNet``'s
+    ``channels`` and ``repeats``)."""
 
     epochs: float = 8.0
     batch: int = 256
@@ -58,6 +59,8 @@ class PatchRecipe:
     label_smoothing: float = 0.02
     seed: int = 0
     validate_every: int = 1000  # steps between validations, each also a checkpoint (out/state.pt)
+    channels: tuple[int, int, int, int] = (16, 32, 64, 96)
+    repeats: int = 1
 
 
 def patch_logits(model: nn.Module, patches: np.ndarray, batch: int = 1024) -> np.ndarray:

@@ -75,7 +75,7 @@ def train_verifier(
             f"train needs drone and drone-free patches, got {len(drones)} and {len(free)}: render more shards"
         )
     torch.manual_seed(recipe.seed)  # the net's initial weights
-    net = HeadingNet(patch_size=patches.shape[1])
+    net = HeadingNet(recipe.channels, patches.shape[1], recipe.repeats)
     model = Symmetric(net)
 
     def draw(rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:

@@ -4,6 +4,7 @@ keypoint network's own keypoints, a short training run, the ONNX export, and the
 from __future__ import annotations
 
 import logging
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -14,7 +15,12 @@ from dronekey.nn.heading_net import Antisymmetric, HeadingNet
 from dronekey.perception.heading_model import HeadingModel
 from dronekey.training.heading_cli import main as heading_main
 from dronekey.training.heading_data import load_shards, write_shards
-from dronekey.training.heading_train import HeadingRecipe, export_heading_model, train_heading
+from dronekey.training.heading_train import (
+    HEADING_RECIPE,
+    HEADING_RECIPES,
+    export_heading_model,
+    train_heading,
+)
 
 
 def test_antisymmetric_wrapper_gives_the_turned_patch_the_opposite_logit():
@@ -23,6 +29,16 @@ def test_antisymmetric_wrapper_gives_the_turned_patch_the_opposite_logit():
     x = torch.randn(3, 3, 64, 64)
     with torch.no_grad():
         np.testing.assert_allclose(model(torch.flip(x, dims=(2, 3))), -model(x), atol=1e-5)
+
+
+def test_heading_net_repeats_the_convs_of_its_two_last_stages():
+    convs = [m for m in HeadingNet(repeats=2).modules() if isinstance(m, torch.nn.Conv2d)]
+    assert len(convs) == 6 and len([m for m in HeadingNet().modules() if isinstance(m, torch.nn.Conv2d)]) == 4
+    deep = HEADING_RECIPES["deep"]
+    assert sum(p.numel() for p in HeadingNet(deep.channels, 64, deep.repeats).parameters()) == 413_585
+    assert sum(p.numel() for p in HeadingNet().parameters()) == 177_617  # the default classifier's
+    with pytest.raises(ValueError, match="repeats"):
+        HeadingNet(repeats=0)
 
 
 def test_shards_label_the_networks_order_against_the_truth(tmp_path):
@@ -51,10 +67,14 @@ def _toy_task(n: int = 512) -> tuple[np.ndarray, np.ndarray]:
 def test_train_export_and_load(tmp_path):
     patches, labels = _toy_task()
     model, history = train_heading(
-        (patches, labels), (patches[:128], labels[:128]), tmp_path, HeadingRecipe(epochs=3, batch=64)
+        (patches, labels),
+        (patches[:128], labels[:128]),
+        tmp_path,
+        replace(HEADING_RECIPES["deep"], epochs=3, batch=64),
     )
     assert (tmp_path / "last.pt").is_file() and (tmp_path / "history.json").is_file()
     assert history[-1]["accuracy"] > 0.9
+    assert sum(p.numel() for p in model.f.parameters()) == 413_585  # the deep recipe's net
     path = export_heading_model(model, tmp_path / "heading.onnx", {"trained_on": {"toy": True}})
     runtime = HeadingModel(path)
     assert runtime.metadata["trained_on"] == {"toy": True}
@@ -71,7 +91,7 @@ def test_cli_refuses_a_validation_seed_it_trains_on(capsys):
 def test_a_stopped_run_goes_on_to_the_weights_an_uninterrupted_run_has(tmp_path, monkeypatch, caplog):
     patches, labels = _toy_task(256)
     data, val = (patches, labels), (patches[:64], labels[:64])
-    recipe = HeadingRecipe(epochs=2, batch=64, validate_every=3)  # 8 steps, checkpoints at 3 and 6
+    recipe = replace(HEADING_RECIPE, epochs=2, batch=64, validate_every=3)  # 8 steps, checkpoints at 3 and 6
     whole, whole_history = train_heading(data, val, tmp_path / "whole", recipe)
 
     augment, calls = patch_train.augment, []
@@ -97,6 +117,6 @@ def test_a_stopped_run_goes_on_to_the_weights_an_uninterrupted_run_has(tmp_path,
     caplog.clear()
     with caplog.at_level(logging.INFO, logger="dronekey.training.patch_train"):
         _, longer = train_heading(
-            data, val, tmp_path / "stopped", HeadingRecipe(epochs=4, batch=64), resume=True
+            data, val, tmp_path / "stopped", replace(HEADING_RECIPE, epochs=4, batch=64), resume=True
         )
     assert "starting a new run" in caplog.text and longer[-1]["step"] == 16
