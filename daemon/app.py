@@ -78,7 +78,7 @@ def default_pipeline_factory(camera: CameraModel, config: DaemonConfig) -> Pipel
         drone=m.drone,
         threads=m.threads,
         mirror_average=m.mirror_average,
-        heading_model=(m.front_back_path or True) if m.front_back else False,
+        heading_model=(m.front_back_path or m.front_back_net) if m.front_back else False,
         verifier=(m.verifier_path or True) if m.verifier else False,
         tracker=TrackerConfig(
             max_tracks=t.max_tracks,

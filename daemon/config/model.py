@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Literal
 
 from pydantic import Field, FilePath, field_validator
 
@@ -33,8 +34,13 @@ class ModelConfig(Section):
         description="decide each crop's front and back with the front/back classifier "
         "(dronekey.perception.heading_model); false: the keypoint network's own head (a coin flip)",
     )
+    front_back_net: Literal["small", "deep"] = Field(
+        "small",
+        description="which shipped front/back classifier: small (0.5 ms a crop) or deep (1.2 ms a crop, "
+        "right on more crops, a pipeline 13-15 % slower; docs/model.md); unused with front_back_path",
+    )
     front_back_path: FilePath | None = Field(
-        None, description="ONNX front/back classifier; null: the one shipped with the package"
+        None, description="ONNX front/back classifier; null: the shipped one that front_back_net names"
     )
     verifier: bool = Field(
         True,

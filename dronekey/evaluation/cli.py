@@ -35,6 +35,7 @@ from dronekey.evaluation.robustness.matrix import (
     QUICK_FRAMES,
 )
 from dronekey.evaluation.robustness.run import run_robustness
+from dronekey.perception.heading_model import SHIPPED_HEADING_MODELS
 from dronekey.sim_replay.annotations import SequenceAnnotations
 from dronekey.sim_replay.io.frames import SequenceFrame, iter_frames
 from dronekey.sim_replay.io.sequence_reader import load_sequence
@@ -206,7 +207,8 @@ def _cmd_robustness(args: argparse.Namespace) -> int:
     if args.model is not None and not Path(args.model).is_file():
         raise _UsageError(f"--model not found: {args.model}")
     for flag, value in (("--front-back", args.front_back), ("--verifier", args.verifier)):
-        if value is not None and not Path(value).is_file():
+        shipped = flag == "--front-back" and value in SHIPPED_HEADING_MODELS
+        if value is not None and not shipped and not Path(value).is_file():
             raise _UsageError(f"{flag} not found: {value}")
     try:
         report = run_robustness(
@@ -370,7 +372,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     r.add_argument("--tuning", action="store_true", help="use (or name with --seeds) the tuning seed set")
     r.add_argument("--model", default=None, help="ONNX model (default: the shipped one)")
-    r.add_argument("--front-back", default=None, help="ONNX front/back classifier (default: the shipped one)")
+    r.add_argument(
+        "--front-back",
+        default=None,
+        help="ONNX front/back classifier, or the name of a shipped one: small (the default) or deep",
+    )
     r.add_argument("--verifier", default=None, help="ONNX drone verifier (default: the shipped one, if any)")
     r.add_argument("--no-verifier", action="store_true", help="run without a drone verifier")
     r.add_argument(

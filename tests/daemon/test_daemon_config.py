@@ -384,6 +384,19 @@ def test_the_tracking_section_reaches_the_pipeline(write_config):
     assert (pipeline.search_more_every, pipeline.search_every, pipeline.max_search_candidates) == (12, 0, 2)
 
 
+def test_the_model_section_chooses_the_shipped_front_back_classifier(write_config):
+    from dronekey.daemon.app import default_pipeline_factory
+
+    camera = CameraModel.from_fov(1920, 1080, 70)
+    for net, name in (("small", "dronekey_heading.onnx"), ("deep", "dronekey_heading_deep.onnx")):
+        config = load_config(write_config(f"source: {{uri: sim://seq13}}\nmodel: {{front_back_net: {net}}}\n"), {})
+        assert default_pipeline_factory(camera, config).model.heading_model.path.name == name
+    result = run_cli("--config", str(write_config("model: {front_back_net: huge}\n")), "--validate-config")
+    assert result.returncode == ExitCode.USAGE
+    (line,) = error_lines(result.stderr)
+    assert "model.front_back_net = 'huge'" in line
+
+
 def test_a_bad_tracking_value_is_one_line(write_config):
     cfg = write_config("source: {uri: sim://seq13}\ntracking: {search_more_every: 0}\n")
     result = run_cli("--config", str(cfg), "--validate-config")

@@ -38,8 +38,10 @@ def test_canonical_patch_turns_the_front_up():
     assert np.argwhere(twin[..., 0] > 200)[:, 0].min() > PATCH_SIZE / 2 + 5
 
 
-def test_shipped_model_answers_the_turned_patch_with_the_complementary_probability():
-    model = HeadingModel()
+@pytest.mark.parametrize("net", ["small", "deep"])
+def test_shipped_model_answers_the_turned_patch_with_the_complementary_probability(net):
+    model = load_heading_model(net)
+    assert model.path == default_heading_model_path(net)
     tensor, ratios = model.preprocess(crop_with_a_nose()[None], KP[None] / 128.0)
     logits = model.inference(np.concatenate([tensor, np.ascontiguousarray(tensor[..., ::-1, ::-1])]))
     assert logits[0] == pytest.approx(-logits[1], abs=1e-5)  # antisymmetric by construction
@@ -68,6 +70,8 @@ def test_errors_name_what_is_wrong(tmp_path):
         load_heading_model(3)
     assert load_heading_model(False) is None
     assert default_heading_model_path().is_file()
+    with pytest.raises(ValueError, match="net must be one of small, deep, got 'huge'"):
+        default_heading_model_path("huge")
 
 
 def test_keypoint_model_takes_the_classifiers_order():
