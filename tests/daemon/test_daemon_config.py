@@ -389,7 +389,8 @@ def test_the_model_section_chooses_the_shipped_front_back_classifier(write_confi
 
     camera = CameraModel.from_fov(1920, 1080, 70)
     for net, name in (("small", "dronekey_heading.onnx"), ("deep", "dronekey_heading_deep.onnx")):
-        config = load_config(write_config(f"source: {{uri: sim://seq13}}\nmodel: {{front_back_net: {net}}}\n"), {})
+        cfg = write_config(f"source: {{uri: sim://seq13}}\nmodel: {{front_back_net: {net}}}\n")
+        config = load_config(cfg, {})
         assert default_pipeline_factory(camera, config).model.heading_model.path.name == name
     result = run_cli("--config", str(write_config("model: {front_back_net: huge}\n")), "--validate-config")
     assert result.returncode == ExitCode.USAGE

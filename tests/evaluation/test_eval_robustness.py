@@ -351,6 +351,8 @@ def test_cli_json_then_table(tmp_path, capsys):
         (["--tuning", "--seeds", "7001"], "overlap the reporting seeds"),
         (["--drone-free", "-1"], "--drone-free must be >= 0, got -1"),
         (["--select", "s99*"], "select ['s99*'] matches no sequence"),
+        (["--front-back", "/nonexistent.onnx"], "--front-back not found"),
+        (["--front-back", "deep", "--select", "s99*"], "matches no sequence"),  # a shipped name is no file
     ],
 )
 def test_bad_arguments_are_one_line(extra, message, tmp_path, capsys):
