@@ -27,9 +27,9 @@ class HeadingNet(nn.Module):
     ----------
     channels : the widths of the four stages (32, 32, 16 and 8 px).
     patch_size : input side, px (a multiple of 16).
-    repeats : 3x3 conv blocks in each of the two last stages (16 and 8 px); 1 is the first
-        classifiers' four-conv net, 2 the deeper one the front/back classifier ships with since the
-        eighteenth session (docs/model.md).
+    repeats : 3x3 conv blocks in each of the two last stages (16 and 8 px); 1 is the four-conv net
+        of the default front/back classifier and the verifier, 2 the deeper, opt-in front/back
+        classifier's (eighteenth session; docs/model.md).
     """
 
     def __init__(

@@ -10,6 +10,7 @@ import os
 import resource
 import subprocess
 import sys
+import typing
 from pathlib import Path
 
 import paths
@@ -386,7 +387,11 @@ def test_the_tracking_section_reaches_the_pipeline(write_config):
 
 def test_the_model_section_chooses_the_shipped_front_back_classifier(write_config):
     from dronekey.daemon.app import default_pipeline_factory
+    from dronekey.daemon.config.model import ModelConfig
+    from dronekey.perception.heading_model import SHIPPED_HEADING_MODELS
 
+    allowed = typing.get_args(ModelConfig.model_fields["front_back_net"].annotation)
+    assert set(allowed) == set(SHIPPED_HEADING_MODELS)  # every shipped classifier, nothing else
     camera = CameraModel.from_fov(1920, 1080, 70)
     for net, name in (("small", "dronekey_heading.onnx"), ("deep", "dronekey_heading_deep.onnx")):
         cfg = write_config(f"source: {{uri: sim://seq13}}\nmodel: {{front_back_net: {net}}}\n")
