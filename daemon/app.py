@@ -279,12 +279,14 @@ class DaemonApp:
             **{k: v for k, v in model.items() if k != "path"},
             "drone": drone.get("name") if isinstance(drone, Mapping) else drone,
         }
+        front_back = described.get("front_back")
         log.info(
-            "model %s (%s, sha256 %s...) on %s",
+            "model %s (%s, sha256 %s...) on %s; front/back classifier %s",
             described["name"],
             described["path"],
             (described["sha256"] or "?")[:12],
             ", ".join(described.get("providers") or ["?"]),
+            Path(front_back).name if front_back else "none (the network's own head)",
         )
         return described
 
