@@ -35,7 +35,7 @@ from dronekey.evaluation.robustness.matrix import (
     QUICK_FRAMES,
 )
 from dronekey.evaluation.robustness.run import run_robustness
-from dronekey.perception.heading_model import SHIPPED_HEADING_MODELS
+from dronekey.perception.heading_model import heading_model_path
 from dronekey.sim_replay.annotations import SequenceAnnotations
 from dronekey.sim_replay.io.frames import SequenceFrame, iter_frames
 from dronekey.sim_replay.io.sequence_reader import load_sequence
@@ -206,10 +206,10 @@ def _cmd_robustness(args: argparse.Namespace) -> int:
         raise _UsageError(f"--out must be a folder, got the file {out}")
     if args.model is not None and not Path(args.model).is_file():
         raise _UsageError(f"--model not found: {args.model}")
-    for flag, value in (("--front-back", args.front_back), ("--verifier", args.verifier)):
-        shipped = flag == "--front-back" and value in SHIPPED_HEADING_MODELS
-        if value is not None and not shipped and not Path(value).is_file():
-            raise _UsageError(f"{flag} not found: {value}")
+    if args.front_back is not None and not heading_model_path(args.front_back).is_file():
+        raise _UsageError(f"--front-back not found: {args.front_back}")
+    if args.verifier is not None and not Path(args.verifier).is_file():
+        raise _UsageError(f"--verifier not found: {args.verifier}")
     try:
         report = run_robustness(
             out,

@@ -46,6 +46,7 @@ __all__ = [
     "canonical_patch",
     "canonical_patches",
     "default_heading_model_path",
+    "heading_model_path",
     "load_heading_model",
     "patches_to_tensor",
 ]
@@ -54,7 +55,6 @@ __all__ = [
 # core of the 2-core box), and "deep" (six convs, 1.2 ms a crop, right on 81 % of held-out crops
 # against 79 %; a pipeline 13-15 % slower; docs/model.md).
 SHIPPED_HEADING_MODELS = {"small": "dronekey_heading.onnx", "deep": "dronekey_heading_deep.onnx"}
-SHIPPED_HEADING_MODEL = SHIPPED_HEADING_MODELS["small"]
 OUTPUT_NAME = "logit"
 
 
@@ -64,6 +64,14 @@ def default_heading_model_path(net: str = "small") -> Path:
     if net not in SHIPPED_HEADING_MODELS:
         raise ValueError(f"net must be one of {', '.join(SHIPPED_HEADING_MODELS)}, got {net!r}")
     return Path(str(resources.files("dronekey.models").joinpath(SHIPPED_HEADING_MODELS[net])))
+
+
+def heading_model_path(choice: str | Path) -> Path:
+    """The file a front/back classifier choice names: a key of ``SHIPPED_HEADING_MODELS``
+    (``"deep"``) the shipped one, anything else a path (``./deep`` for a file so named)."""
+    if isinstance(choice, str) and choice in SHIPPED_HEADING_MODELS:
+        return default_heading_model_path(choice)
+    return Path(choice)
 
 
 class HeadingModel(PatchClassifier):
@@ -100,15 +108,12 @@ class HeadingModel(PatchClassifier):
 
 
 def load_heading_model(choice: bool | str | Path) -> HeadingModel | None:
-    """The classifier a pipeline asked for: True the shipped default, a name of
-    ``SHIPPED_HEADING_MODELS`` (``"deep"``) that shipped one, a path that file (``./deep`` for a file
-    so named), False none."""
+    """The classifier a pipeline asked for: True the shipped default, a shipped name or a path the
+    file ``heading_model_path`` names, False none."""
     if choice is False or choice is None:
         return None
     if choice is True:
         return HeadingModel()
-    if isinstance(choice, str) and choice in SHIPPED_HEADING_MODELS:
-        return HeadingModel(default_heading_model_path(choice))
     if isinstance(choice, (str, Path)):
-        return HeadingModel(choice)
+        return HeadingModel(heading_model_path(choice))
     raise TypeError(f"heading_model must be True, False, a shipped name or a path, got {choice!r}")
