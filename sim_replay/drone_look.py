@@ -98,6 +98,34 @@ class BodyShape:
             led_rear=leds and bool(rng.random() < 0.9),
         )
 
+    def shows_front(self, from_above: bool) -> bool:
+        """Whether a viewer can tell this body's front from its back, from above the propeller plane
+        (``from_above``) or from below it.
+
+        The cues: a gimbal under the nose, a tapered shell or a nose cone, rear arms dropped lower
+        (seen from anywhere); a battery bulge, a front or rear stripe, a gimbal on top (on the top
+        shell: seen from above only). LEDs are no cue, since drones light them either way round. A
+        body with none is front/back symmetric, and whoever reads its heading must say it cannot.
+        """
+        anywhere = self.gimbal == "nose" or self.nose_taper < 1.0 or self.nose_length > 0
+        anywhere = anywhere or self.rear_arm_drop > 0
+        on_top = self.battery > 0 or self.stripe in ("front", "rear") or self.gimbal == "top"
+        return anywhere or (from_above and on_top)
+
+    def without_front_cues(self) -> BodyShape:
+        """This body with every front/back cue removed (``shows_front`` is False from anywhere):
+        no gimbal, a box shell, no nose cone, no battery bulge, level arms, no half stripe. Size,
+        arms, guards, legs and LEDs stay."""
+        return replace(
+            self,
+            gimbal="none",
+            nose_taper=1.0,
+            nose_length=0.0,
+            battery=0.0,
+            rear_arm_drop=0.0,
+            stripe="none" if self.stripe in ("front", "rear") else self.stripe,
+        )
+
     def key(self) -> tuple:
         return tuple(getattr(self, f.name) for f in fields(self))
 
@@ -232,8 +260,9 @@ class DroneLook:
     blink_phase: float = 0.0
 
     @classmethod
-    def draw(cls, style_seed: int, leds: str = "random") -> DroneLook:
-        """The look drawn from ``style_seed`` (a non-negative integer) with the LEDs of ``leds``.
+    def draw(cls, style_seed: int, leds: str = "random", cue_free: bool = False) -> DroneLook:
+        """The look drawn from ``style_seed`` (a non-negative integer) with the LEDs of ``leds``;
+        ``cue_free``: the same body with its front/back cues removed (``BodyShape.without_front_cues``).
 
         ``leds`` is one of ``LED_MODES``: ``"random"`` keeps the style's own LEDs (absent on 45 % of
         drones, any colours otherwise); ``"red-front"`` / ``"green-front"`` light red at the front and
@@ -252,6 +281,8 @@ class DroneLook:
         if leds != "random":
             shape = replace(shape, led_front=True, led_rear=True)
             style = style.with_leds(leds)
+        if cue_free:
+            shape = shape.without_front_cues()
         look = cls(shape, style, hz if blinks else None, phase)
         return look if look.leds_lit else replace(look, blink_hz=None)
 

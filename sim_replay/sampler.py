@@ -77,6 +77,9 @@ class SamplerConfig:
     defocus_prob: float = 0.2
     jpeg_prob: float = 0.5
     render_cap: float = 2.0  # render at most this times the input size, then area-resize
+    # drones drawn with no front/back cue (BodyShape.without_front_cues), besides the few random
+    # bodies that have none: the front/back classifier's data, which must teach it to say so
+    cue_free_fraction: float = 0.0
 
     def __post_init__(self) -> None:
         lo, hi = self.size_px
@@ -84,6 +87,8 @@ class SamplerConfig:
             raise ValueError(f"size_px must satisfy 0 < min <= max, got {self.size_px}")
         if not 0 <= self.negative_fraction < 1:
             raise ValueError(f"negative_fraction must be in [0, 1), got {self.negative_fraction}")
+        if not 0 <= self.cue_free_fraction <= 1:
+            raise ValueError(f"cue_free_fraction must be in [0, 1], got {self.cue_free_fraction}")
 
 
 @dataclass(frozen=True)
@@ -95,6 +100,8 @@ class CropSample:
     visibility : (4,) int, 2 visible / 1 hidden (zeros without a drone).
     present : whether a drone is in the crop.
     area : the drone box's area in normalised crop units^2 (the OKS scale; 0 without a drone).
+    front_visible : whether the drone's body shows which end is its front from where the camera
+        sees it (``BodyShape.shows_front``; False without a drone).
     """
 
     image: np.ndarray
@@ -102,6 +109,7 @@ class CropSample:
     visibility: np.ndarray
     present: bool
     area: float
+    front_visible: bool = False
 
 
 class CropSampler:
@@ -140,7 +148,7 @@ class CropSampler:
         probs = np.array([p for _, p in self.config.drones], dtype=np.float64)
         self._specs = [load_spec(n) for n in names]
         self._spec_p = probs / probs.sum()
-        self._meshes: dict[str, list] = {spec.name: [] for spec in self._specs}  # see _mesh
+        self._meshes: dict[tuple[str, bool], list] = {}  # (spec, cue-free) -> (mesh, shape); see _mesh
 
     # ------------------------------------------------------------------ public
     def sample(self) -> CropSample:
@@ -219,7 +227,8 @@ class CropSampler:
         t = z * np.array([(u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy, 1.0])
         R = self._rotation()
         style = DroneStyle.random(rng)
-        mesh = self._mesh(spec)
+        cue_free = cfg.cue_free_fraction > 0 and rng.random() < cfg.cue_free_fraction
+        mesh, shape = self._mesh(spec, cue_free)
         if rng.random() < cfg.led_off_phase_prob:
             style = style.with_leds("off")
         backlit = rng.random() < cfg.backlit_prob
@@ -262,7 +271,9 @@ class CropSampler:
         img = _resize(self._camera_effects(img), S)
         kp = to_normalised(kp_full, roi).astype(np.float32)
         area = box[2] * box[3] / side**2
-        return CropSample(img, kp, vis, True, float(area))
+        # seen from above the propeller plane: the body's up axis (-z, z down) points at the camera
+        from_above = float(R[:, 2] @ t) > 0
+        return CropSample(img, kp, vis, True, float(area), shape.shows_front(from_above))
 
     def _negative(self, bg: np.ndarray, proposals: list[tuple[int, int, int]]) -> CropSample:
         rng, cfg = self.rng, self.config
@@ -294,16 +305,23 @@ class CropSampler:
         img = _resize(self._camera_effects(img), S)
         return CropSample(img, np.zeros((4, 2), np.float32), np.zeros(4, np.int64), False, 0.0)
 
-    def _mesh(self, spec):
-        """A random body for ``spec``: from a pool of ``MESH_POOL`` shapes, one replaced by a new
-        shape in ``MESH_RENEW`` of the draws (building a mesh costs as much as rendering it)."""
-        pool = self._meshes[spec.name]
+    def _mesh(self, spec, cue_free: bool = False) -> tuple:
+        """A random body for ``spec`` and its shape (``cue_free``: one without front/back cues): from
+        a pool of ``MESH_POOL`` shapes each, one replaced by a new shape in ``MESH_RENEW`` of the
+        draws (building a mesh costs as much as rendering it)."""
+        pool = self._meshes.setdefault((spec.name, cue_free), [])
+
+        def draw() -> tuple:
+            shape = BodyShape.random(self.rng)
+            shape = shape.without_front_cues() if cue_free else shape
+            return build_mesh(spec, shape), shape
+
         if len(pool) < MESH_POOL:
-            pool.append(build_mesh(spec, BodyShape.random(self.rng)))
+            pool.append(draw())
             return pool[-1]
         k = int(self.rng.integers(MESH_POOL))
         if self.rng.random() < MESH_RENEW:
-            pool[k] = build_mesh(spec, BodyShape.random(self.rng))
+            pool[k] = draw()
         return pool[k]
 
     def _clutter(self, img: np.ndarray, box, kp: np.ndarray, vis: np.ndarray, size: float) -> None:

@@ -9,10 +9,18 @@ daemon runs it (mirror-averaged, in its head's order), then warped front-up arou
 not the labels, gives the classifier the same patches, with the same errors, that it sees at run
 time.
 
+A drone whose body shows no front from where the camera sees it (``BodyShape.shows_front``: no
+nose gimbal, taper, nose cone, dropped rear arms, and seen from below no battery, half stripe or
+top gimbal) has no answer, so its label is 0.5: the classifier learns to say it cannot tell rather
+than read noise as a front. ``CUE_FREE_FRACTION`` of the rendered drones are drawn without any
+cue, so that such bodies are common enough to learn from (about 1 % of random bodies have none,
+and a few percent more only on top).
+
 Shards of ``SHARD_SIZE`` drawn crops are written as ``s{seed}_{index:03d}.npz`` (``patch`` uint8
 (N, P, P, 3), ``y`` bool, ``ratio`` the front axis over the hub radius, ``err`` / ``err_twin`` the
-mean keypoint error of the order and of its twin, px of the crop), so a stopped run resumes and a
-folder can be extended with another seed.
+mean keypoint error of the order and of its twin, px of the crop, ``cue`` bool whether the body
+shows its front; shards written before ``cue`` existed count as all showing it), so a stopped run
+resumes and a folder can be extended with another seed.
 """
 
 from __future__ import annotations
@@ -26,9 +34,12 @@ from dronekey.perception.keypoint_model import HEADING_TWIN, KeypointModel
 from dronekey.perception.patch_classifier import PATCH_SIZE, canonical_patches
 from dronekey.training.patch_shards import SHARD_SIZE, network_outputs, write_patch_shards
 
-__all__ = ["SHARD_SIZE", "load_shards", "write_shards"]
+__all__ = ["CUE_FREE_FRACTION", "NO_ANSWER", "SHARD_SIZE", "load_shards", "write_shards"]
 
 LOG = logging.getLogger(__name__)
+
+CUE_FREE_FRACTION = 0.1  # rendered drones drawn with no front/back cue
+NO_ANSWER = 0.5  # the label of a patch whose body shows no front
 
 
 def write_shards(
@@ -41,7 +52,9 @@ def write_shards(
 ) -> list[Path]:
     """Render ``shards`` shards of ``shard_size`` drone crops with sampler seed ``seed`` into ``out``
     (``patch_shards.write_patch_shards``: resumable, one sampler stream per seed)."""
-    return write_patch_shards(out, seed, shards, _label, 0.0, keypoint_model, progress, shard_size)
+    return write_patch_shards(
+        out, seed, shards, _label, 0.0, keypoint_model, progress, shard_size, "s", CUE_FREE_FRACTION
+    )
 
 
 def _label(model: KeypointModel, samples: list) -> dict[str, np.ndarray]:
@@ -59,6 +72,7 @@ def _label(model: KeypointModel, samples: list) -> dict[str, np.ndarray]:
         "y": err < err_twin,
         "err": err.astype(np.float32),
         "err_twin": err_twin.astype(np.float32),
+        "cue": np.array([s.front_visible for s in samples]),
     }
 
 
@@ -67,14 +81,16 @@ def load_shards(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Patches (N, P, P, 3) uint8 and labels (N,) float32 of the shards, keeping the samples whose
     order the ground truth decides (the nearer order's error below ``decided`` times the other's)
-    and whose front axis points somewhere (``min_axis_ratio``, as at run time)."""
+    and whose front axis points somewhere (``min_axis_ratio``, as at run time). The label is 1 or 0,
+    or ``NO_ANSWER`` where the body shows no front."""
     patches, labels = [], []
     for path in paths:
         with np.load(path) as d:
             near, far = np.minimum(d["err"], d["err_twin"]), np.maximum(d["err"], d["err_twin"])
             keep = (near < decided * far) & (d["ratio"] >= min_axis_ratio)
+            cue = d["cue"] if "cue" in d.files else np.ones(len(keep), bool)
             patches.append(d["patch"][keep])
-            labels.append(d["y"][keep].astype(np.float32))
+            labels.append(np.where(cue, d["y"], NO_ANSWER)[keep].astype(np.float32))
     if not patches:
         raise ValueError("no shards to load")
     return np.concatenate(patches), np.concatenate(labels)

@@ -16,6 +16,7 @@ import torch
 
 from dronekey.nn.heading_net import Antisymmetric, HeadingNet
 from dronekey.perception.heading_model import OUTPUT_NAME
+from dronekey.training.heading_data import NO_ANSWER
 from dronekey.training.patch_train import (
     PatchRecipe,
     export_patch_classifier,
@@ -39,20 +40,30 @@ HEADING_RECIPE = HEADING_RECIPES["small"]
 
 
 def evaluate(model: torch.nn.Module, patches: np.ndarray, labels: np.ndarray, batch: int = 1024) -> dict:
-    """Accuracy, negative log-likelihood, and the share of confident answers (|2p - 1| >= 0.5) and of
-    confident wrong ones, on uint8 patches with labels 1 (nose at the top) / 0."""
+    """On uint8 patches with labels 1 (nose at the top), 0, or ``NO_ANSWER`` (the body shows no front):
+    over the answerable ones, accuracy, negative log-likelihood, and the share of confident answers
+    (|2p - 1| >= 0.5) and of confident wrong ones; over the others (``no_answer_*``, NaN when there
+    are none), their count, the mean |2p - 1| and the share answered confidently, which should
+    both be small."""
     logits = patch_logits(model, patches, batch)
     p = 1.0 / (1.0 + np.exp(-logits))
-    right = (p > 0.5) == (labels > 0.5)
-    confident = np.abs(2 * p - 1) >= 0.5
-    nll = -np.mean(labels * np.log(p + 1e-7) + (1 - labels) * np.log(1 - p + 1e-7))
+    answerable = labels != NO_ANSWER
+    p_a, y_a = p[answerable], labels[answerable]
+    right = (p_a > 0.5) == (y_a > 0.5)
+    confident = np.abs(2 * p_a - 1) >= 0.5
+    nll = -np.mean(y_a * np.log(p_a + 1e-7) + (1 - y_a) * np.log(1 - p_a + 1e-7))
+    sure_of_nothing = np.abs(2 * p[~answerable] - 1)
+    nan = float("nan")
     return {
-        "samples": int(len(labels)),
+        "samples": int(answerable.sum()),
         "accuracy": float(right.mean()),
         "nll": float(nll),
         "confident": float(confident.mean()),
         "confident_wrong": float((confident & ~right).mean()),
-        "confident_accuracy": float(right[confident].mean()) if confident.any() else float("nan"),
+        "confident_accuracy": float(right[confident].mean()) if confident.any() else nan,
+        "no_answer_samples": int((~answerable).sum()),
+        "no_answer_certainty": float(sure_of_nothing.mean()) if len(sure_of_nothing) else nan,
+        "no_answer_confident": float((sure_of_nothing >= 0.5).mean()) if len(sure_of_nothing) else nan,
     }
 
 
