@@ -206,6 +206,13 @@ def build_parser() -> argparse.ArgumentParser:
         "at 1-2 Hz on a quarter of the style seeds",
     )
     conditions.add_argument(
+        "--cue-free",
+        action="store_true",
+        help="draw the drone's body with no front/back cue (no gimbal, nose, taper, battery bulge, "
+        "dropped rear arms or half stripe): a symmetric drone whose heading nobody can tell, which "
+        "the pipeline must publish as unsure",
+    )
+    conditions.add_argument(
         "--no-drone",
         action="store_true",
         help="drone-free sequence (no annotations): edge clutter, moving birds, flying objects and clouds",
@@ -322,6 +329,7 @@ def _scene_options(args: argparse.Namespace, width: int, height: int) -> dict:
         "flight": args.flight,
         "background": args.background,
         "range_scale": args.range_scale,
+        "cue_free": args.cue_free,
     }
 
 

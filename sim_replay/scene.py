@@ -116,7 +116,7 @@ def _scene_drone(plan: DronePlan, times: np.ndarray, fps: float, c: SequenceCond
         angles = np.array([plan.path(t)[1] for t in times])
     R = np.array([rotation_from_euler_deg(*a) for a in angles]).reshape(-1, 3, 3)
     style_seed = c.style_seed + plan.instance_id
-    look = DroneLook.draw(style_seed, c.leds)
+    look = DroneLook.draw(style_seed, c.leds, c.cue_free)
     return SceneDrone(plan.instance_id, load_spec(plan.drone), look, style_seed, positions, later, R)
 
 
@@ -171,6 +171,7 @@ def build_scene(
     flight: str = "scripted",
     background: str | None = None,
     range_scale: float = 1.0,
+    cue_free: bool = False,
     drones: int | None = None,
     cameras: int = 1,
 ) -> Scene:
@@ -203,6 +204,7 @@ def build_scene(
         flight=flight,
         background="procedural" if background is None else background,
         range_scale=range_scale,
+        cue_free=bool(cue_free),
     )
     source = background_source(conditions.background, backgrounds)
     times = np.arange(frames) / p.fps

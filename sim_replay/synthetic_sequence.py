@@ -82,6 +82,8 @@ class SequenceConditions:
     flight : one of ``FLIGHT_MODELS``: the preset's attitude script, or coordinated flight.
     background : one of ``BACKGROUND_KINDS``.
     range_scale : factor on the drone's position relative to the camera (> 0; 2 is twice as far).
+    cue_free : draw the drone's body with no front/back cue (``BodyShape.without_front_cues``): a
+        drone whose front nobody can tell, whose heading the pipeline must report as unknown.
     """
 
     style_seed: int
@@ -90,6 +92,7 @@ class SequenceConditions:
     flight: str = "scripted"
     background: str = "procedural"
     range_scale: float = 1.0
+    cue_free: bool = False
 
     def __post_init__(self) -> None:
         if isinstance(self.style_seed, bool) or not isinstance(self.style_seed, int | np.integer):
@@ -130,6 +133,7 @@ def sequence_info(
         "flight": c.flight,
         "background": c.background,
         "range_scale": float(c.range_scale),
+        "cue_free": bool(c.cue_free),
     }
 
 
@@ -194,7 +198,8 @@ class SyntheticSequence:
         self.camera = camera
         self.spec = spec
         self.conditions = conditions or SequenceConditions(style_seed=style_seed_for(seed))
-        self.look = look or DroneLook.draw(self.conditions.style_seed, self.conditions.leds)
+        c = self.conditions
+        self.look = look or DroneLook.draw(c.style_seed, c.leds, c.cue_free)
         self._backgrounds = backgrounds
 
     @property
@@ -313,6 +318,7 @@ def build_sequence(
     flight: str = "scripted",
     background: str | None = None,
     range_scale: float = 1.0,
+    cue_free: bool = False,
 ) -> SyntheticSequence:
     """Prepare a preset for rendering.
 
@@ -350,6 +356,9 @@ def build_sequence(
     range_scale : float
         Factor (> 0) on the drone's scripted position relative to the camera: 2.5 puts it 2.5 times
         as far and draws it 2.5 times smaller (about 30-60 px across at 1080p).
+    cue_free : bool
+        Draw the drone's body without any front/back cue (no gimbal, nose, taper, battery bulge,
+        dropped rear arms or half stripe): the same style seed's drone, made front/back symmetric.
 
     Raises
     ------
@@ -379,6 +388,7 @@ def build_sequence(
         flight=flight,
         background="procedural" if background is None else background,
         range_scale=range_scale,
+        cue_free=bool(cue_free),
     )
     source = background_source(conditions.background, backgrounds)
     return SyntheticSequence(

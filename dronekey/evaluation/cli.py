@@ -229,6 +229,7 @@ def _cmd_robustness(args: argparse.Namespace) -> int:
             progress=sys.stderr.isatty(),
             select=args.select,
             dither=args.dither,
+            cue_free=args.cue_free,
         )
     except ImportError as exc:  # --background photos without scikit-image / scikit-learn
         raise _UsageError(str(exc)) from None
@@ -385,6 +386,12 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="SEED",
         help="add -1, 0 or +1 grey level of seeded noise to every frame before the pipeline: the "
         "figures' change against a run without is the evaluation's noise floor",
+    )
+    r.add_argument(
+        "--cue-free",
+        action="store_true",
+        help="draw every drone with no front/back cue (same seeds; folders end in -cuefree): whose "
+        "heading nobody can tell, so conf>90 must stay near 0 and 'sure ok' is the doubt's cost",
     )
     r.add_argument("--quick", action="store_true", help="reduced matrix for a smoke test (see above)")
     r.add_argument(

@@ -101,6 +101,23 @@ def test_default_matrix_and_seeds():
     assert len({e.name for e in entries}) == len(entries)
 
 
+def test_cue_free_matrix_is_the_same_scenes_with_symmetric_drones():
+    plain, symmetric = matrix.plan_matrix(), matrix.plan_matrix(cue_free=True)
+    for a, b in zip(plain, symmetric, strict=True):
+        assert (a.seed, a.style_seed, a.leds, a.background, a.far) == (
+            b.seed,
+            b.style_seed,
+            b.leds,
+            b.background,
+            b.far,
+        )
+        if a.no_drone:  # nothing to draw: the same sequence, rendered once for both
+            assert b == a
+            continue
+        assert b.cue_free and b.name == a.name + "-cuefree" and b.build().info["cue_free"] is True
+        assert not a.cue_free and a.build().info["cue_free"] is False
+
+
 def test_seed_sets_are_kept_apart():
     with pytest.raises(ValueError, match="overlap the tuning seeds"):
         check_seeds([matrix.TUNING_SEED], tuning=False)

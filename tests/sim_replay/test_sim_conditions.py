@@ -15,7 +15,7 @@ from dronekey.geometry.rotations import rotation_from_euler_deg
 from dronekey.sim_replay import synthetic_sequence
 from dronekey.sim_replay.backgrounds import HELD_OUT_PHOTOS, packaged_photos
 from dronekey.sim_replay.cli import main
-from dronekey.sim_replay.drone_look import DroneLook
+from dronekey.sim_replay.drone_look import BodyShape, DroneLook
 from dronekey.sim_replay.flight import CoordinatedFlight, finite_differences, tilt_for_thrust
 from dronekey.sim_replay.io.frames import iter_frames
 from dronekey.sim_replay.io.sequence_reader import load_sequence
@@ -149,6 +149,22 @@ def test_default_style_seed_is_derived_from_the_seed_and_recorded():
         assert np.array_equal(fa.image, fb.image)
 
 
+def test_cue_free_draws_the_same_drone_with_no_front_back_cue():
+    nose_gimbal = next(s for s in range(100) if DroneLook.draw(s).shape.gimbal == "nose")
+    look, symmetric = DroneLook.draw(nose_gimbal), DroneLook.draw(nose_gimbal, cue_free=True)
+    assert look.shape.shows_front(from_above=False) and look.shape.shows_front(from_above=True)
+    assert not symmetric.shape.shows_front(from_above=True)
+    assert not symmetric.shape.shows_front(from_above=False)
+    assert symmetric.style == look.style and symmetric.shape.length == look.shape.length
+    # cues on the top shell are seen from above only
+    battery_only = BodyShape(battery=0.3, gimbal="none", stripe="none")
+    assert battery_only.shows_front(from_above=True) and not battery_only.shows_front(from_above=False)
+    a = frames_of(build_sequence("seq13", frames=2, style_seed=nose_gimbal, width=W, height=H))
+    b = frames_of(build_sequence("seq13", frames=2, style_seed=nose_gimbal, width=W, height=H, cue_free=True))
+    assert np.array_equal(a[0].record.drone.keypoints_px, b[0].record.drone.keypoints_px)
+    assert not np.array_equal(a[0].image, b[0].image)  # the nose gimbal is gone
+
+
 def _steady_motor_led_seed() -> int:
     """A style seed whose forced LEDs sit under the motors and do not blink."""
     for s in range(200):
@@ -280,18 +296,19 @@ def test_info_records_the_conditions(tmp_path):
         "sky",
         "--range-scale",
         "1.5",
+        "--cue-free",
     ]
     assert run_cli(argv) == 0
     info = json.loads((tmp_path / "seq13.json").read_text())["info"]
-    assert {
-        k: info[k] for k in ("style_seed", "leds", "no_drone", "flight", "background", "range_scale")
-    } == {
+    keys = ("style_seed", "leds", "no_drone", "flight", "background", "range_scale", "cue_free")
+    assert {k: info[k] for k in keys} == {
         "style_seed": 5,
         "leds": "green-front",
         "no_drone": False,
         "flight": "coordinated",
         "background": "sky",
         "range_scale": 1.5,
+        "cue_free": True,
     }
     assert info["leds_lit"] is True and "led_blink_hz" in info
     assert load_sequence(tmp_path / "seq13.json").info["style_seed"] == 5

@@ -13,11 +13,13 @@ import torch
 import dronekey.training.patch_train as patch_train
 from dronekey.nn.heading_net import Antisymmetric, HeadingNet
 from dronekey.perception.heading_model import HeadingModel
+from dronekey.sim_replay.sampler import CropSampler, SamplerConfig
 from dronekey.training.heading_cli import main as heading_main
-from dronekey.training.heading_data import load_shards, write_shards
+from dronekey.training.heading_data import NO_ANSWER, load_shards, write_shards
 from dronekey.training.heading_train import (
     HEADING_RECIPE,
     HEADING_RECIPES,
+    evaluate,
     export_heading_model,
     train_heading,
 )
@@ -51,6 +53,37 @@ def test_shards_label_the_networks_order_against_the_truth(tmp_path):
     assert again == paths
     patches, labels = load_shards(paths, decided=1.0, min_axis_ratio=0.0)
     assert len(patches) == len(labels) > 10
+
+
+def test_a_body_that_shows_no_front_is_labelled_no_answer(tmp_path):
+    paths = write_shards(tmp_path, seed=5, shards=1, shard_size=40)
+    with np.load(paths[0]) as d:
+        cue, kept = d["cue"], d["err"] != d["err_twin"]
+    assert cue.any() and not cue.all()  # CUE_FREE_FRACTION of the drones, and top-only cues from below
+    _, labels = load_shards(paths, decided=1.0, min_axis_ratio=0.0)
+    np.testing.assert_array_equal(labels == NO_ANSWER, ~cue[kept])
+    with np.load(paths[0]) as d:  # a shard written before "cue" existed: every body shows its front
+        np.savez(tmp_path / "old.npz", **{k: d[k] for k in d.files if k != "cue"})
+    _, old_labels = load_shards([tmp_path / "old.npz"], decided=1.0, min_axis_ratio=0.0)
+    assert set(np.unique(old_labels)) <= {0.0, 1.0}
+
+
+def test_sampler_draws_cue_free_drones_on_request():
+    sampler = CropSampler(SamplerConfig(negative_fraction=0.0, cue_free_fraction=1.0), seed=3)
+    assert not any(sampler.sample().front_visible for _ in range(6))
+    with pytest.raises(ValueError, match="cue_free_fraction must be in"):
+        SamplerConfig(cue_free_fraction=1.5)
+
+
+def test_evaluate_scores_answerable_patches_and_the_doubt_on_the_others():
+    patches, labels = _toy_task(256)
+    labels[:64] = NO_ANSWER
+    torch.manual_seed(0)
+    model = Antisymmetric(HeadingNet()).eval()
+    scores = evaluate(model, patches, labels)
+    assert scores["samples"] == 192 and scores["no_answer_samples"] == 64
+    assert 0 <= scores["no_answer_certainty"] <= 1 and 0 <= scores["no_answer_confident"] <= 1
+    assert np.isnan(evaluate(model, patches[64:], labels[64:])["no_answer_certainty"])
 
 
 def _toy_task(n: int = 512) -> tuple[np.ndarray, np.ndarray]:

@@ -76,7 +76,7 @@ class MatrixEntry:
     preset : motion (``seq11``, ``seq12``, ``seq13``). seed : scene seed. style_seed : drone-look
     seed. leds : LED mode. background : background kind. range_scale : distance factor (1 near,
     ``FAR_RANGE_SCALE`` far). no_drone : a drone-free sequence. frames : frame count. width,
-    height : image size, pixels.
+    height : image size, pixels. cue_free : the drone's body drawn without front/back cues.
     """
 
     preset: str
@@ -89,6 +89,7 @@ class MatrixEntry:
     frames: int
     width: int
     height: int
+    cue_free: bool = False
 
     @property
     def far(self) -> bool:
@@ -101,7 +102,8 @@ class MatrixEntry:
         if self.no_drone:
             return f"s{self.seed}-{self.preset}-nodrone-{self.background}"
         far = f"-far{self.range_scale:g}" if self.far else ""
-        return f"s{self.seed}-{self.preset}-{self.leds}-{self.background}{far}"
+        cue_free = "-cuefree" if self.cue_free else ""
+        return f"s{self.seed}-{self.preset}-{self.leds}-{self.background}{far}{cue_free}"
 
     def folder(self, out_dir: str | Path) -> Path:
         """Where the sequence is written: ``out_dir/<W>x<H>-<frames>f/<name>/``."""
@@ -120,6 +122,7 @@ class MatrixEntry:
             no_drone=self.no_drone,
             background=self.background,
             range_scale=self.range_scale,
+            cue_free=self.cue_free,
         )
 
     def to_dict(self) -> dict:
@@ -133,6 +136,7 @@ class MatrixEntry:
             "range_scale": self.range_scale,
             "far": self.far,
             "no_drone": self.no_drone,
+            "cue_free": self.cue_free,
             "frames": self.frames,
             "size": [self.width, self.height],
         }
@@ -163,6 +167,7 @@ def plan_matrix(
     drone_free: int = DRONE_FREE_SEQUENCES,
     width: int = 1920,
     height: int = 1080,
+    cue_free: bool = False,
 ) -> list[MatrixEntry]:
     """The sequences of one seed set: drone sequences (LED x background x motion), then drone-free.
 
@@ -175,6 +180,9 @@ def plan_matrix(
         or None for no far drone.
     drone_free : number of drone-free sequences (cycling over motions, then backgrounds).
     width, height : image size, pixels.
+    cue_free : draw every drone of the drone sequences without front/back cues (same seeds, same
+        liveries and LEDs, a symmetric body): the sequences whose heading no one can know. The
+        drone-free sequences are the same either way.
 
     Raises
     ------
@@ -219,6 +227,7 @@ def plan_matrix(
                         frames,
                         width,
                         height,
+                        bool(cue_free),
                     )
                 )
     for j in range(drone_free):

@@ -117,7 +117,8 @@ class RobustnessReport:
             f"{st['size'][0]}x{st['size'][1]}, model {Path(st['model']).name}"
             + (f", front/back {Path(st['front_back']).name}" if st.get("front_back") else "")
             + (f", verifier {Path(st['verifier']).name}" if st.get("verifier") else "")
-            + (f", frames dithered (seed {st['dither']})" if st.get("dither") is not None else ""),
+            + (f", frames dithered (seed {st['dither']})" if st.get("dither") is not None else "")
+            + (", every drone cue-free (no front/back cue)" if st.get("cue_free") else ""),
         ]
         if not st.get("model_has_heading_head", True):
             lines.append(

@@ -63,6 +63,7 @@ def run_robustness(
     progress: bool = False,
     select: Sequence[str] | None = None,
     dither: int | None = None,
+    cue_free: bool = False,
 ) -> RobustnessReport:
     """Render the matrix (reusing what ``out_dir`` holds), run the pipeline and score it.
 
@@ -74,8 +75,8 @@ def run_robustness(
         ``[REPORTING_SEED]``.
     tuning : the seeds are the tuning set (kept apart from the reporting set, ``check_seeds``).
     model_path : ONNX keypoint model; the shipped one by default.
-    leds, backgrounds, motions, far_range_scale, drone_free, width, height : the matrix
-        (``plan_matrix``).
+    leds, backgrounds, motions, far_range_scale, drone_free, width, height, cue_free : the matrix
+        (``plan_matrix``; ``cue_free``: every drone front/back symmetric).
     mirror_average : passed to the pipeline (the daemon's default).
     front_back, verifier : the pipeline's front/back classifier and drone verifier: True the
         shipped ones, a path another, False none.
@@ -112,6 +113,7 @@ def run_robustness(
         "drone_free": drone_free,
         "width": width,
         "height": height,
+        "cue_free": bool(cue_free),
     }
     plans = check_seeds(bases, tuning=tuning, **matrix)
     out_dir = Path(out_dir)
@@ -137,6 +139,7 @@ def run_robustness(
         "motions": list(motions),
         "far_range_scale": far_range_scale,
         "drone_free_sequences": int(drone_free),
+        "cue_free": bool(cue_free),
         "select": None if select is None else list(select),
         "model": str(model.path),
         "model_has_heading_head": bool(model.has_heading),
