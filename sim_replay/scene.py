@@ -20,7 +20,6 @@ import numpy as np
 
 from dronekey.geometry.drone_spec import load_spec
 from dronekey.geometry.rotations import ned_from_camera, rotation_from_euler_deg
-from dronekey.sim_replay.drone_look import DroneLook
 from dronekey.sim_replay.flight import CoordinatedFlight
 from dronekey.sim_replay.io.site import (
     SITE_FORMAT,
@@ -116,7 +115,7 @@ def _scene_drone(plan: DronePlan, times: np.ndarray, fps: float, c: SequenceCond
         angles = np.array([plan.path(t)[1] for t in times])
     R = np.array([rotation_from_euler_deg(*a) for a in angles]).reshape(-1, 3, 3)
     style_seed = c.style_seed + plan.instance_id
-    look = DroneLook.draw(style_seed, c.leds, c.cue_free)
+    look = c.draw_look(style_seed)
     return SceneDrone(plan.instance_id, load_spec(plan.drone), look, style_seed, positions, later, R)
 
 

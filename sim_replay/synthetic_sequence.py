@@ -111,6 +111,11 @@ class SequenceConditions:
         if isinstance(scale, bool) or not isinstance(scale, int | float) or not (0 < scale < math.inf):
             raise ValueError(f"range_scale must be a positive number, got {scale!r}")
 
+    def draw_look(self, style_seed: int) -> DroneLook:
+        """The drone look these conditions give style seed ``style_seed`` (its LEDs, and its body made
+        front/back symmetric with ``cue_free``): one rule for single- and multi-drone scenes."""
+        return DroneLook.draw(style_seed, self.leds, self.cue_free)
+
 
 def sequence_info(
     name: str, seed: int, preset: Preset, conditions: SequenceConditions, look: DroneLook | None
@@ -198,8 +203,7 @@ class SyntheticSequence:
         self.camera = camera
         self.spec = spec
         self.conditions = conditions or SequenceConditions(style_seed=style_seed_for(seed))
-        c = self.conditions
-        self.look = look or DroneLook.draw(c.style_seed, c.leds, c.cue_free)
+        self.look = look or self.conditions.draw_look(self.conditions.style_seed)
         self._backgrounds = backgrounds
 
     @property

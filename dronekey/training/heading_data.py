@@ -53,7 +53,14 @@ def write_shards(
     """Render ``shards`` shards of ``shard_size`` drone crops with sampler seed ``seed`` into ``out``
     (``patch_shards.write_patch_shards``: resumable, one sampler stream per seed)."""
     return write_patch_shards(
-        out, seed, shards, _label, 0.0, keypoint_model, progress, shard_size, "s", CUE_FREE_FRACTION
+        out,
+        seed,
+        shards,
+        _label,
+        keypoint_model=keypoint_model,
+        progress=progress,
+        shard_size=shard_size,
+        cue_free_fraction=CUE_FREE_FRACTION,
     )
 
 
