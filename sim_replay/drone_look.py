@@ -31,6 +31,9 @@ __all__ = [
 GIMBAL_PLACES = ("nose", "top", "none")
 LED_PLACES = ("motor", "arm", "body")
 PROP_LOOKS = ("disc", "blades", "stopped")
+# Obstacle-sensor pods (a dark plate with two lenses) on the shell's end faces. Real drones carry
+# them at the front, the rear, both or neither; drawn either way round they are no front/back cue.
+END_SENSOR_PLACES = ("none", "front", "rear", "both")
 # --leds of dronekey-sim: red at the front and green at the rear (the usual DJI convention), the
 # other way round, none, or drawn at random like the training sampler does.
 LED_MODES = ("red-front", "green-front", "off", "random")
@@ -64,6 +67,7 @@ class BodyShape:
     led_place: str = "motor"
     led_front: bool = True  # LEDs under the front rotors (place "motor"/"arm") or on the nose ("body")
     led_rear: bool = True
+    end_sensors: str = "none"  # obstacle-sensor pods on the end faces: one of END_SENSOR_PLACES
 
     def __post_init__(self) -> None:
         if self.gimbal not in GIMBAL_PLACES:
@@ -72,6 +76,8 @@ class BodyShape:
             raise ValueError(f"led_place must be one of {LED_PLACES}, got {self.led_place!r}")
         if self.stripe not in ("front", "rear", "full", "none"):
             raise ValueError(f"stripe must be front, rear, full or none, got {self.stripe!r}")
+        if self.end_sensors not in END_SENSOR_PLACES:
+            raise ValueError(f"end_sensors must be one of {END_SENSOR_PLACES}, got {self.end_sensors!r}")
 
     @classmethod
     def random(cls, rng: np.random.Generator, leds: bool = True) -> BodyShape:
@@ -115,7 +121,7 @@ class BodyShape:
     def without_front_cues(self) -> BodyShape:
         """This body with every front/back cue removed (``shows_front`` is False from anywhere):
         no gimbal, a box shell, no nose cone, no battery bulge, level arms, no half stripe. Size,
-        arms, guards, legs and LEDs stay."""
+        arms, guards, legs, LEDs and end sensors stay."""
         return replace(
             self,
             gimbal="none",
@@ -125,6 +131,14 @@ class BodyShape:
             rear_arm_drop=0.0,
             stripe="none" if self.stripe in ("front", "rear") else self.stripe,
         )
+
+    def with_random_end_sensors(self, rng: np.random.Generator, fraction: float) -> BodyShape:
+        """This body with obstacle-sensor pods drawn from ``rng``: on ``fraction`` of bodies, at the
+        front, the rear or both ends with equal chance (so a dark box at an end says nothing about
+        which end it is); the others keep theirs."""
+        if not rng.random() < fraction:
+            return self
+        return replace(self, end_sensors=str(rng.choice(END_SENSOR_PLACES[1:])))
 
     def key(self) -> tuple:
         return tuple(getattr(self, f.name) for f in fields(self))

@@ -3,7 +3,7 @@
 
 The propeller hubs sit exactly on the spec's ``keypoints_3d`` (z = 0 is the propeller plane; +z is
 down): they are the labels and never move. The rest (shell, nose, battery, gimbal, arms, motors,
-guards, legs, stripe, LED housings, propeller discs) follows the shape, which is drawn at random
+guards, legs, stripe, LED housings, end sensors, propeller discs) follows the shape, which is drawn at random
 (``BodyShape.random``), so no single part marks a keypoint or the front in every drone and a network
 trained on these renders has to read the whole shape. The default ``BodyShape()`` is the first
 round's drone (gimbal under the nose, LEDs under the motors). Colours come at render time
@@ -247,6 +247,22 @@ def _build_mesh(spec: DroneSpec, shape: BodyShape) -> DroneMesh:
             -down,
         )
         parts.append(_part("lens", v, f, "lens"))
+    for end in ("front", "rear") if shape.end_sensors == "both" else (shape.end_sensors,):
+        if end == "none":
+            continue
+        # Obstacle-sensor pod: a dark plate on the end face, level with the upper shell, two lenses
+        # looking out along the body axis (the nose cone's base at the front: it stands proud of it).
+        scale = shape.nose_taper if end == "front" else 1.0
+        x = x_front if end == "front" else x_rear
+        pw, ph = width * 0.55 * scale, (z_mid - z_top) * 0.55 * scale
+        out = np.sign(x) * fwd
+        face = np.array([x, 0.0, zc])
+        v, f = _prism(_rect(pw, ph), face - out * 0.002, face + out * 0.003, -down)
+        parts.append(_part(f"sensor_{end}", v, f, "gimbal"))
+        for side in (-1.0, 1.0):
+            eye = face + np.array([0.0, side * pw * 0.28, 0.0]) + out * 0.003
+            v, f = _prism(_circle(ph * 0.3, 10), eye, eye + out * 0.002, -down)
+            parts.append(_part(f"sensor_lens_{end}", v, f, "lens"))
     if shape.led_place == "body":
         size = min(width, height) * 0.18
         for name, lit, x in (("front", shape.led_front, x_front), ("rear", shape.led_rear, x_rear)):

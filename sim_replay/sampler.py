@@ -80,6 +80,9 @@ class SamplerConfig:
     # drones drawn with no front/back cue (BodyShape.without_front_cues), besides the few random
     # bodies that have none: the front/back classifier's data, which must teach it to say so
     cue_free_fraction: float = 0.0
+    # bodies given obstacle-sensor pods at the front, the rear or both (BodyShape.end_sensors): a
+    # dark box at an end, like the nose gimbal's, that marks neither end
+    end_sensor_fraction: float = 0.0
 
     def __post_init__(self) -> None:
         lo, hi = self.size_px
@@ -89,6 +92,8 @@ class SamplerConfig:
             raise ValueError(f"negative_fraction must be in [0, 1), got {self.negative_fraction}")
         if not 0 <= self.cue_free_fraction <= 1:
             raise ValueError(f"cue_free_fraction must be in [0, 1], got {self.cue_free_fraction}")
+        if not 0 <= self.end_sensor_fraction <= 1:
+            raise ValueError(f"end_sensor_fraction must be in [0, 1], got {self.end_sensor_fraction}")
 
 
 @dataclass(frozen=True)
@@ -314,6 +319,8 @@ class CropSampler:
         def draw() -> tuple:
             shape = BodyShape.random(self.rng)
             shape = shape.without_front_cues() if cue_free else shape
+            if self.config.end_sensor_fraction > 0:  # drawn only when asked: other streams unchanged
+                shape = shape.with_random_end_sensors(self.rng, self.config.end_sensor_fraction)
             return build_mesh(spec, shape), shape
 
         if len(pool) < MESH_POOL:

@@ -14,7 +14,10 @@ nose gimbal, taper, nose cone, dropped rear arms, and seen from below no battery
 top gimbal) has no answer, so its label is 0.5: the classifier learns to say it cannot tell rather
 than read noise as a front. ``CUE_FREE_FRACTION`` of the rendered drones are drawn without any
 cue, so that such bodies are common enough to learn from (about 1 % of random bodies have none,
-and a few percent more only on top).
+and a few percent more only on top). ``END_SENSOR_FRACTION`` of them carry obstacle-sensor pods at
+the front, the rear or both (``BodyShape.end_sensors``): a dark box at an end of the body, like the
+nose gimbal or a body LED's housing, that marks neither end, so the classifier cannot take one for
+a nose.
 
 Shards of ``SHARD_SIZE`` drawn crops are written as ``s{seed}_{index:03d}.npz`` (``patch`` uint8
 (N, P, P, 3), ``y`` bool, ``ratio`` the front axis over the hub radius, ``err`` / ``err_twin`` the
@@ -32,13 +35,22 @@ import numpy as np
 
 from dronekey.perception.keypoint_model import HEADING_TWIN, KeypointModel
 from dronekey.perception.patch_classifier import PATCH_SIZE, canonical_patches
+from dronekey.sim_replay.sampler import SamplerConfig
 from dronekey.training.patch_shards import SHARD_SIZE, network_outputs, write_patch_shards
 
-__all__ = ["CUE_FREE_FRACTION", "NO_ANSWER", "SHARD_SIZE", "load_shards", "write_shards"]
+__all__ = [
+    "CUE_FREE_FRACTION",
+    "END_SENSOR_FRACTION",
+    "NO_ANSWER",
+    "SHARD_SIZE",
+    "load_shards",
+    "write_shards",
+]
 
 LOG = logging.getLogger(__name__)
 
-CUE_FREE_FRACTION = 0.1  # rendered drones drawn with no front/back cue
+CUE_FREE_FRACTION = 0.2  # rendered drones drawn with no front/back cue
+END_SENSOR_FRACTION = 0.3  # rendered drones given obstacle-sensor pods at the front, rear or both
 NO_ANSWER = 0.5  # the label of a patch whose body shows no front
 
 
@@ -57,10 +69,14 @@ def write_shards(
         seed,
         shards,
         _label,
+        SamplerConfig(
+            negative_fraction=0.0,
+            cue_free_fraction=CUE_FREE_FRACTION,
+            end_sensor_fraction=END_SENSOR_FRACTION,
+        ),
         keypoint_model=keypoint_model,
         progress=progress,
         shard_size=shard_size,
-        cue_free_fraction=CUE_FREE_FRACTION,
     )
 
 

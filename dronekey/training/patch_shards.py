@@ -34,29 +34,26 @@ def write_patch_shards(
     seed: int,
     shards: int,
     label: Label,
-    negative_fraction: float = 0.0,
+    sampler_config: SamplerConfig | None = None,
     keypoint_model: str | Path | None = None,
     progress: bool = False,
     shard_size: int = SHARD_SIZE,
     prefix: str = "s",
-    cue_free_fraction: float = 0.0,
 ) -> list[Path]:
     """Render ``shards`` shards of ``shard_size`` crops with sampler seed ``seed`` into ``out``.
 
     One sampler stream per seed, shard after shard. Shards already there are kept: when all are,
     nothing is rendered; otherwise the stream is drawn again from its start (so that every shard
     holds the same crops whichever run wrote it) and only the missing shards are written.
-    ``label(model, samples)`` turns a shard's crops into the arrays to save;
-    ``cue_free_fraction`` is the sampler's share of drones without front/back cues
-    (``SamplerConfig.cue_free_fraction``).
+    ``label(model, samples)`` turns a shard's crops into the arrays to save; ``sampler_config`` is
+    the sampler's (its share of drone-free crops, of cue-free bodies...; None: the defaults).
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     paths = [out / f"{prefix}{seed}_{index:03d}.npz" for index in range(shards)]
     if all(path.is_file() for path in paths):
         return paths
-    config = SamplerConfig(negative_fraction=negative_fraction, cue_free_fraction=cue_free_fraction)
-    sampler = CropSampler(config, seed=seed)
+    sampler = CropSampler(sampler_config or SamplerConfig(), seed=seed)
     model = KeypointModel(keypoint_model, threads=1, mirror_average=True)
     for path in tqdm(paths, desc=f"shards of seed {seed}", disable=not progress):
         samples = [sampler.sample() for _ in range(shard_size)]

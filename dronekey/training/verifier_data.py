@@ -21,7 +21,7 @@ import numpy as np
 
 from dronekey.perception.keypoint_model import HEADING_MIN_PRESENCE, KeypointModel
 from dronekey.perception.patch_classifier import PATCH_SIZE, canonical_patches
-from dronekey.sim_replay.sampler import CropSample
+from dronekey.sim_replay.sampler import CropSample, SamplerConfig
 from dronekey.training.patch_shards import SHARD_SIZE, network_outputs, write_patch_shards
 
 __all__ = ["NEGATIVE_FRACTION", "load_verifier_shards", "write_verifier_shards"]
@@ -42,7 +42,15 @@ def write_verifier_shards(
     """Render ``shards`` shards of ``shard_size`` drawn crops with sampler seed ``seed`` into
     ``out`` (resumable, one sampler stream per seed)."""
     return write_patch_shards(
-        out, seed, shards, _label, NEGATIVE_FRACTION, keypoint_model, progress, shard_size, prefix="v"
+        out,
+        seed,
+        shards,
+        _label,
+        SamplerConfig(negative_fraction=NEGATIVE_FRACTION),
+        keypoint_model,
+        progress,
+        shard_size,
+        prefix="v",
     )
 
 

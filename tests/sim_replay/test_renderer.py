@@ -8,7 +8,7 @@ from dronekey.geometry.crop import CropPolicy, from_normalised
 from dronekey.geometry.drone_spec import load_spec
 from dronekey.geometry.rotations import rotation_from_euler_deg
 from dronekey.sim_replay.annotations import HIDDEN, VISIBLE
-from dronekey.sim_replay.drone_look import DroneStyle
+from dronekey.sim_replay.drone_look import BodyShape, DroneStyle
 from dronekey.sim_replay.mesh import build_mesh, segment_hits
 from dronekey.sim_replay.renderer import Lighting, render_drone
 from dronekey.sim_replay.sampler import CropSampler, SamplerConfig
@@ -101,3 +101,30 @@ def test_normalised_keypoints_map_back_to_full_frame_pixels():
 def test_sampler_config_rejects_bad_sizes(bad):
     with pytest.raises(ValueError, match="size_px"):
         SamplerConfig(size_px=bad)
+
+
+def test_end_sensors_are_drawn_at_either_end_and_are_no_front_cue():
+    ends = {}
+    for end in ("front", "rear", "both"):
+        parts = [p.name for p in build_mesh(SPEC, BodyShape(end_sensors=end)).parts]
+        ends[end] = {n.split("_")[-1] for n in parts if n.startswith("sensor_")}
+    assert ends == {"front": {"front"}, "rear": {"rear"}, "both": {"front", "rear"}}
+    symmetric = BodyShape(end_sensors="front").without_front_cues()
+    assert symmetric.end_sensors == "front" and not symmetric.shows_front(from_above=True)
+    with pytest.raises(ValueError, match="end_sensors must be one of"):
+        BodyShape(end_sensors="left")
+    rng = np.random.default_rng(0)
+    drawn = [BodyShape().with_random_end_sensors(rng, 1.0).end_sensors for _ in range(300)]
+    counts = [drawn.count(end) for end in ("front", "rear", "both")]
+    assert sum(counts) == 300 and min(counts) > 70  # either end alike: no cue
+    assert BodyShape().with_random_end_sensors(rng, 0.0) == BodyShape()
+
+
+def test_sampler_gives_end_sensors_on_request_and_leaves_other_streams_alone():
+    plain = CropSampler(SamplerConfig(negative_fraction=0.0), seed=4).sample()
+    same = CropSampler(SamplerConfig(negative_fraction=0.0, end_sensor_fraction=0.0), seed=4).sample()
+    pods = CropSampler(SamplerConfig(negative_fraction=0.0, end_sensor_fraction=1.0), seed=4).sample()
+    assert np.array_equal(plain.image, same.image)
+    assert not np.array_equal(plain.image, pods.image)
+    with pytest.raises(ValueError, match="end_sensor_fraction must be in"):
+        SamplerConfig(end_sensor_fraction=-0.1)
