@@ -3,9 +3,9 @@
 
 The propeller hubs sit exactly on the spec's ``keypoints_3d`` (z = 0 is the propeller plane; +z is
 down): they are the labels and never move. The rest (shell, nose, battery, gimbal, arms, motors,
-guards, legs, stripe, LED housings, end sensors, propeller discs) follows the shape, which is drawn at random
-(``BodyShape.random``), so no single part marks a keypoint or the front in every drone and a network
-trained on these renders has to read the whole shape. The default ``BodyShape()`` is the first
+guards, legs, stripe, LED housings, end sensors, propeller discs) follows the shape, which is drawn
+at random (``BodyShape.random``), so no single part marks a keypoint or the front in every drone and
+a network trained on these renders has to read the whole shape. The default ``BodyShape()`` is the first
 round's drone (gimbal under the nose, LEDs under the motors). Colours come at render time
 (``drone_look.DroneStyle``).
 
@@ -250,10 +250,14 @@ def _build_mesh(spec: DroneSpec, shape: BodyShape) -> DroneMesh:
     for end in ("front", "rear") if shape.end_sensors == "both" else (shape.end_sensors,):
         if end == "none":
             continue
-        # Obstacle-sensor pod: a dark plate on the end face, level with the upper shell, two lenses
-        # looking out along the body axis (the nose cone's base at the front: it stands proud of it).
-        scale = shape.nose_taper if end == "front" else 1.0
-        x = x_front if end == "front" else x_rear
+        # Obstacle-sensor pod: a dark plate on the body's end face, level with the upper shell, two
+        # lenses looking out along the body axis. At the front that face is the nose cone's tip
+        # when there is one (on the shell's front face the cone would hide it).
+        scale, x = 1.0, x_rear
+        if end == "front":
+            cone = shape.nose_length > 0
+            scale = shape.nose_taper * (0.35 if cone else 1.0)
+            x = x_front + (shape.nose_length * diag if cone else 0.0)
         pw, ph = width * 0.55 * scale, (z_mid - z_top) * 0.55 * scale
         out = np.sign(x) * fwd
         face = np.array([x, 0.0, zc])
