@@ -135,8 +135,9 @@ class BodyShape:
     def with_random_end_sensors(self, rng: np.random.Generator, fraction: float) -> BodyShape:
         """This body with obstacle-sensor pods drawn from ``rng``: on ``fraction`` of bodies, at the
         front, the rear or both ends with equal chance (so a dark box at an end says nothing about
-        which end it is); the others keep theirs."""
-        if not rng.random() < fraction:
+        which end it is); the others keep theirs. ``fraction`` 0 draws nothing from ``rng``, so
+        every other stream of it stays as it was."""
+        if fraction <= 0 or not rng.random() < fraction:
             return self
         return replace(self, end_sensors=str(rng.choice(END_SENSOR_PLACES[1:])))
 

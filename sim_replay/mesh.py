@@ -5,8 +5,8 @@ The propeller hubs sit exactly on the spec's ``keypoints_3d`` (z = 0 is the prop
 down): they are the labels and never move. The rest (shell, nose, battery, gimbal, arms, motors,
 guards, legs, stripe, LED housings, end sensors, propeller discs) follows the shape, which is drawn
 at random (``BodyShape.random``), so no single part marks a keypoint or the front in every drone and
-a network trained on these renders has to read the whole shape. The default ``BodyShape()`` is the first
-round's drone (gimbal under the nose, LEDs under the motors). Colours come at render time
+a network trained on these renders has to read the whole shape. The default ``BodyShape()`` is the
+first round's drone (gimbal under the nose, LEDs under the motors). Colours come at render time
 (``drone_look.DroneStyle``).
 
 Every opaque part is a convex polyhedron, so the renderer can test a line of sight against it
@@ -25,6 +25,8 @@ from dronekey.sim_replay.drone_look import BodyShape
 __all__ = ["EMISSIVE", "OPAQUE", "PROP", "DroneMesh", "Part", "build_mesh", "segment_hits"]
 
 OPAQUE, PROP, EMISSIVE = "opaque", "prop", "emissive"
+NOSE_TIP_SCALE = 0.35  # a nose cone's tip section over its base
+_POD_ENDS = {"none": (), "front": ("front",), "rear": ("rear",), "both": ("front", "rear")}
 
 
 @dataclass(frozen=True)
@@ -208,10 +210,13 @@ def _build_mesh(spec: DroneSpec, shape: BodyShape) -> DroneMesh:
         lower, np.array([x_rear, 0, zc2]), np.array([length * 0.46, 0, zc2]), -down, (lower_end, lower_end)
     )
     parts.append(_part("underside", v, f, "underside"))
+    # The body's frontmost face: the nose cone's tip (NOSE_TIP_SCALE of its base) or the shell's front.
+    x_nose, nose_scale = x_front + shape.nose_length * diag, shape.nose_taper
     if shape.nose_length > 0:  # a tapered nose cone ahead of the shell
         nose = upper * shape.nose_taper
-        tip = np.array([x_front + shape.nose_length * diag, 0, zc])
-        v, f = _prism(nose, np.array([x_front, 0, zc]), tip, -down, (0.35, 0.35))
+        tip = np.array([x_nose, 0, zc])
+        v, f = _prism(nose, np.array([x_front, 0, zc]), tip, -down, (NOSE_TIP_SCALE, NOSE_TIP_SCALE))
+        nose_scale *= NOSE_TIP_SCALE
         parts.append(_part("nose", v, f, "body"))
     if shape.battery > 0:  # battery pack bulging out of the rear top
         bl = shape.battery * length
@@ -247,17 +252,11 @@ def _build_mesh(spec: DroneSpec, shape: BodyShape) -> DroneMesh:
             -down,
         )
         parts.append(_part("lens", v, f, "lens"))
-    for end in ("front", "rear") if shape.end_sensors == "both" else (shape.end_sensors,):
-        if end == "none":
-            continue
+    for end in _POD_ENDS[shape.end_sensors]:
         # Obstacle-sensor pod: a dark plate on the body's end face, level with the upper shell, two
         # lenses looking out along the body axis. At the front that face is the nose cone's tip
         # when there is one (on the shell's front face the cone would hide it).
-        scale, x = 1.0, x_rear
-        if end == "front":
-            cone = shape.nose_length > 0
-            scale = shape.nose_taper * (0.35 if cone else 1.0)
-            x = x_front + (shape.nose_length * diag if cone else 0.0)
+        x, scale = (x_nose, nose_scale) if end == "front" else (x_rear, 1.0)
         pw, ph = width * 0.55 * scale, (z_mid - z_top) * 0.55 * scale
         out = np.sign(x) * fwd
         face = np.array([x, 0.0, zc])

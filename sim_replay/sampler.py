@@ -319,8 +319,7 @@ class CropSampler:
         def draw() -> tuple:
             shape = BodyShape.random(self.rng)
             shape = shape.without_front_cues() if cue_free else shape
-            if self.config.end_sensor_fraction > 0:  # drawn only when asked: other streams unchanged
-                shape = shape.with_random_end_sensors(self.rng, self.config.end_sensor_fraction)
+            shape = shape.with_random_end_sensors(self.rng, self.config.end_sensor_fraction)
             return build_mesh(spec, shape), shape
 
         if len(pool) < MESH_POOL:

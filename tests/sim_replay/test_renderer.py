@@ -112,10 +112,10 @@ def test_end_sensors_are_drawn_at_either_end_and_are_no_front_cue():
     # the front pod sits on the body's frontmost face: a nose cone's tip, not hidden inside the cone
     for nose_length in (0.0, 0.1):
         mesh = build_mesh(SPEC, BodyShape(end_sensors="front", nose_length=nose_length))
-        tip = max(p.vertices[:, 0].max() for p in mesh.parts if p.name == "nose") if nose_length else None
+        front = "nose" if nose_length else "shell"
+        face = max(p.vertices[:, 0].max() for p in mesh.parts if p.name == front)
         pod = min(p.vertices[:, 0].min() for p in mesh.parts if p.name.startswith("sensor_lens"))
-        shell = max(p.vertices[:, 0].max() for p in mesh.parts if p.name == "shell")
-        assert pod > (tip if nose_length else shell) - 1e-9
+        assert pod > face - 1e-9
     symmetric = BodyShape(end_sensors="front").without_front_cues()
     assert symmetric.end_sensors == "front" and not symmetric.shows_front(from_above=True)
     with pytest.raises(ValueError, match="end_sensors must be one of"):
