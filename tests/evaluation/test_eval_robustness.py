@@ -64,6 +64,9 @@ METRICS = {
     "missed_unseen_pct",
     "front_back_frames",
     "front_back_right_pct",
+    "front_away_pct",
+    "confident_wrong_heading_front_away_pct",
+    "confident_wrong_heading_front_toward_pct",
 }
 
 ENTRY_KEYS = {"name", "seed", "style_seed", "leds", "background", "range_scale", "far", "no_drone", "reused"}
@@ -223,9 +226,27 @@ def test_summarise_pools_frames():
         0.0,
     )
     assert s["front_back_frames"] == 3 and s["front_back_right_pct"] == pytest.approx(66.67)
+    # every drone square across the view (identity rotation): none points its front away
+    assert s["front_away_pct"] == 0.0 and s["confident_wrong_heading_front_away_pct"] is None
+    assert s["confident_wrong_heading_front_toward_pct"] == 0.0
     only_free = summarise([free])
     assert only_free["false_tracks_per_1000_frames"] == 500.0 and only_free["mae_angle_deg"] is None
     assert set(only_free) == METRICS
+
+
+def test_summarise_splits_confident_wrong_headings_by_where_the_front_points():
+    # four detected frames; the first three point the front away from the camera (body x along
+    # the camera's +z), the last towards it; all but the third are wrong and sure
+    wrong = [True, True, False, True]
+    s = _scores([False] * 4, [True] * 4, wrong, wrong, [[0, 0, 0]] * 4)
+    turn = np.array([[0.0, 0.0, -1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]])  # x -> +z
+    s.R_true[:3] = turn
+    s.R_true[3] = turn.T  # x -> -z: front towards the camera
+    out = summarise([s])
+    assert out["front_away_pct"] == 75.0
+    assert out["confident_wrong_heading_front_away_pct"] == pytest.approx(66.67)
+    assert out["confident_wrong_heading_front_toward_pct"] == 100.0
+    assert out["confident_wrong_heading_pct"] == 75.0
 
 
 def test_line_of_sight_tells_the_drone_at_a_wrong_range_from_elsewhere():

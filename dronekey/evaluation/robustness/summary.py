@@ -17,6 +17,13 @@ Per sequence and per group (a frame-weighted average over the scored frames, ``s
   confidence, percent of the annotated frames; ``wrong_heading_pct`` is the same share at any
   confidence; ``confident_right_heading_pct`` the share whose track is right and says so (what the
   pipeline's doubt costs: never being sure would make the confident-wrong share 0);
+- the view: ``front_away_pct``, the annotated frames whose drone points its front away from the
+  camera (its forward axis has a positive component along the optical axis), and the confident
+  wrong heading % among those frames and among the others (front towards the camera, or square
+  across the view). A heading reader that follows the end nearer the camera is wrong with the
+  front away and right with it towards; one that reads the body is as often wrong either way. The
+  split keeps a matrix whose drones mostly fly away from the camera from passing the one for the
+  other;
 - why frames were missed, percent of the annotated frames (with detected % they add up to 100):
   the drone read at a wrong range by a published track, held by a tentative track that was not
   confirmed, or not held at all;
@@ -56,8 +63,10 @@ def summarise(scores: Sequence[SequenceScores]) -> dict:
     ``confident_wrong_heading_frames``, ``confident_wrong_heading_pct``, ``wrong_heading_frames``,
     ``wrong_heading_pct`` (any confidence), ``confident_right_heading_frames``,
     ``confident_right_heading_pct``, ``missed_wrong_range_pct``, ``missed_unconfirmed_pct``,
-    ``missed_unseen_pct``, ``front_back_frames`` and ``front_back_right_pct``; figures that need a
-    drone sequence are None without one, and a figure with no frame to average is None.
+    ``missed_unseen_pct``, ``front_back_frames``, ``front_back_right_pct``, ``front_away_pct``,
+    ``confident_wrong_heading_front_away_pct`` and ``confident_wrong_heading_front_toward_pct``;
+    figures that need a drone sequence are None without one, and a figure with no frame to average
+    is None.
     """
     frames = sum(s.frames for s in scores)
     false_frames = sum(int(s.false_frame.sum()) for s in scores)
@@ -95,6 +104,9 @@ def summarise(scores: Sequence[SequenceScores]) -> dict:
         "missed_unseen_pct": None,
         "front_back_frames": None,
         "front_back_right_pct": None,
+        "front_away_pct": None,
+        "confident_wrong_heading_front_away_pct": None,
+        "confident_wrong_heading_front_toward_pct": None,
     }
     if not n_ann:
         return out
@@ -106,7 +118,9 @@ def summarise(scores: Sequence[SequenceScores]) -> dict:
     errors = pose_errors(cat("R_track")[hit], cat("t_track")[hit], cat("R_true")[hit], cat("t_true")[hit])
     ap = ap_kp(cat("kp_pred"), cat("kp_true"), cat("area"), cat("score"), has_pred=cat("has_pred"))
     wrong = int(cat("wrong_heading").sum())
-    confident_wrong = int(cat("confident_wrong_heading").sum())
+    confident_wrong_frames = cat("confident_wrong_heading")
+    confident_wrong = int(confident_wrong_frames.sum())
+    away = cat("R_true")[:, 2, 0] > 0  # the body's forward (x) axis along the camera's optical axis
     confident_right = int(cat("confident_right_heading").sum())
     front_back = cat("front_back_right")
     asked = np.isfinite(front_back)
@@ -129,5 +143,12 @@ def summarise(scores: Sequence[SequenceScores]) -> dict:
         missed_unseen_pct=rounded(_pct(int(cat("missed_unseen").sum()), n_ann), 2),
         front_back_frames=int(asked.sum()),
         front_back_right_pct=rounded(_pct(int(front_back[asked].sum()), int(asked.sum())), 2),
+        front_away_pct=rounded(_pct(int(away.sum()), n_ann), 2),
+        confident_wrong_heading_front_away_pct=rounded(
+            _pct(int(confident_wrong_frames[away].sum()), int(away.sum())), 2
+        ),
+        confident_wrong_heading_front_toward_pct=rounded(
+            _pct(int(confident_wrong_frames[~away].sum()), int((~away).sum())), 2
+        ),
     )
     return out
