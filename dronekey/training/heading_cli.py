@@ -50,8 +50,10 @@ def build_parser() -> argparse.ArgumentParser:
         "--net",
         choices=sorted(HEADING_RECIPES),
         default="small",
-        help="the classifier's net: small (four convs, the default shipped one) or deep (six convs, the "
-        "shipped dronekey_heading_deep.onnx: --seeds 31001 31002 31003 31004 --epochs 4)",
+        help="the classifier's net: small (four convs, the default shipped one), deep (six convs, the "
+        "shipped dronekey_heading_deep.onnx: --seeds 31001 31002 31003 31004 --epochs 4) or gated (the "
+        "small one with a second, symmetric logit that says whether the body shows a front at all and "
+        "pulls the answer to 0.5 when it does not)",
     )
     p.add_argument("--export", default=None, help="ONNX file to write (default: OUT/heading.onnx)")
     return p

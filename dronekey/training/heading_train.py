@@ -4,7 +4,9 @@ Recipe (``patch_train``): AdamW (weight decay 1e-4), one-cycle learning rate up 
 256 patches drawn from the loaded shards, binary cross-entropy with labels smoothed to 0.02 /
 0.98, augmented with what must not decide (the patch turned 180 degrees with its label flipped:
 the twin). The exported graph is ``Antisymmetric(HeadingNet)``: input ``patch`` (batch, 3, 64, 64)
-float32 (``patches_to_tensor``), output ``logit`` (batch,).
+float32 (``patches_to_tensor``), output ``logit`` (batch,). The "gated" recipe's net gives a second
+logit, trained on whether the patch has an answer at all (``gated_objective``), and exports as
+``GatedAntisymmetric``: the same input and output, the answer pulled to 0.5 where the gate is shut.
 """
 
 from __future__ import annotations
@@ -14,13 +16,14 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from dronekey.nn.heading_net import Antisymmetric, HeadingNet
+from dronekey.nn.heading_net import Antisymmetric, GatedAntisymmetric, HeadingNet
 from dronekey.perception.heading_model import OUTPUT_NAME
 from dronekey.training.heading_data import NO_ANSWER
 from dronekey.training.patch_train import (
     PatchRecipe,
     export_patch_classifier,
     patch_logits,
+    smoothed_bce,
     train_patch_classifier,
 )
 
@@ -35,6 +38,7 @@ __all__ = ["HEADING_RECIPE", "HEADING_RECIPES", "evaluate", "export_heading_mode
 HEADING_RECIPES = {
     "small": PatchRecipe(),
     "deep": PatchRecipe(epochs=4.0, channels=(16, 32, 64, 128), repeats=2),
+    "gated": PatchRecipe(gated=True),
 }
 HEADING_RECIPE = HEADING_RECIPES["small"]
 
@@ -74,18 +78,18 @@ def train_heading(
     recipe: PatchRecipe | None = None,
     progress: bool = False,
     resume: bool = False,
-) -> tuple[Antisymmetric, list[dict]]:
+) -> tuple[Antisymmetric | GatedAntisymmetric, list[dict]]:
     """Train on ``train`` (patches, labels), validate on ``val`` every ``recipe.validate_every``
     steps and at the end, keep ``out/last.pt``, ``out/history.json`` and the run's state
     (``resume``: go on from it; ``patch_train.train_patch_classifier``); returns the antisymmetric
-    model and the history."""
+    model (gated with ``recipe.gated``) and the history."""
     recipe = recipe or HEADING_RECIPE
     patches, labels = train
     if len(patches) < recipe.batch:
         raise ValueError(f"train has {len(patches)} patches, fewer than one batch of {recipe.batch}")
     torch.manual_seed(recipe.seed)  # the net's initial weights
-    net = HeadingNet(recipe.channels, patches.shape[1], recipe.repeats)
-    model = Antisymmetric(net)
+    net = HeadingNet(recipe.channels, patches.shape[1], recipe.repeats, outputs=2 if recipe.gated else 1)
+    model = GatedAntisymmetric(net) if recipe.gated else Antisymmetric(net)
 
     def draw(rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:
         idx = rng.integers(0, len(patches), n)
@@ -104,10 +108,21 @@ def train_heading(
         desc="front/back classifier",
         progress=progress,
         resume=resume,
+        objective=gated_objective if recipe.gated else None,
     )
     return model, history
 
 
-def export_heading_model(model: Antisymmetric, path: str | Path, metadata: dict | None = None) -> Path:
+def gated_objective(out: torch.Tensor, labels: torch.Tensor, smooth: float) -> torch.Tensor:
+    """The loss of a gated net's two logits (``GatedAntisymmetric``): the order logit against the
+    labels as the plain classifier's (no-answer patches towards 0.5), plus the gate against whether
+    the patch has an answer at all."""
+    shows_front = (labels != NO_ANSWER).to(out.dtype)
+    return smoothed_bce(out[:, 0], labels, smooth) + smoothed_bce(out[:, 1], shows_front, smooth)
+
+
+def export_heading_model(
+    model: Antisymmetric | GatedAntisymmetric, path: str | Path, metadata: dict | None = None
+) -> Path:
     """Write the front/back classifier as ONNX with JSON metadata, checked against torch."""
     return export_patch_classifier(model, path, OUTPUT_NAME, metadata)

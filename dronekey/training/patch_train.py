@@ -39,6 +39,7 @@ __all__ = [
     "augment",
     "export_patch_classifier",
     "patch_logits",
+    "smoothed_bce",
     "train_patch_classifier",
 ]
 
@@ -61,6 +62,7 @@ class PatchRecipe:
     validate_every: int = 1000  # steps between validations, each also a checkpoint (out/state.pt)
     channels: tuple[int, int, int, int] = (16, 32, 64, 96)
     repeats: int = 1
+    gated: bool = False  # front/back only: a second, symmetric logit says whether there is a front
 
 
 def patch_logits(model: nn.Module, patches: np.ndarray, batch: int = 1024) -> np.ndarray:
@@ -113,13 +115,15 @@ def train_patch_classifier(
     desc: str,
     progress: bool = False,
     resume: bool = False,
+    objective: Callable[[torch.Tensor, torch.Tensor, float], torch.Tensor] | None = None,
 ) -> list[dict]:
-    """Train ``net`` (the one-logit CNN inside the exported ``model`` wrapper) for ``steps``
+    """Train ``net`` (the CNN inside the exported ``model`` wrapper) for ``steps``
     batches that ``draw(rng, batch)`` returns as (uint8 patches, labels); ``validate(model)``
     every ``recipe.validate_every`` steps and at the end; keep ``out/last.pt``,
     ``out/history.json`` and the run's state (``STATE_FILE``). ``resume``: go on from that state
-    when it is of the same recipe and number of steps (else start anew, and say why). Returns the
-    history."""
+    when it is of the same recipe and number of steps (else start anew, and say why).
+    ``objective(net output, labels, label smoothing)``: the loss, by default binary cross-entropy
+    of the one logit against the smoothed labels. Returns the history."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     torch.manual_seed(recipe.seed)
@@ -146,7 +150,7 @@ def train_patch_classifier(
             torch.from_numpy(patches_to_tensor(patches)), torch.from_numpy(labels), g, turn_flips_label
         )
         # f alone with the 180-degree turn as augmentation: half the work of the wrapper's pair
-        loss = functional.binary_cross_entropy_with_logits(net(x), y * (1 - 2 * smooth) + smooth)
+        loss = (objective or smoothed_bce)(net(x), y, smooth)
         opt.zero_grad()
         loss.backward()
         opt.step()
@@ -177,6 +181,11 @@ def train_patch_classifier(
             partial.replace(out / STATE_FILE)
     model.eval()
     return history
+
+
+def smoothed_bce(logits: torch.Tensor, labels: torch.Tensor, smooth: float) -> torch.Tensor:
+    """Binary cross-entropy of ``logits`` against ``labels`` smoothed to ``smooth`` / ``1 - smooth``."""
+    return functional.binary_cross_entropy_with_logits(logits, labels * (1 - 2 * smooth) + smooth)
 
 
 def _saved_state(path: Path, recipe: PatchRecipe, steps: int) -> dict | None:

@@ -11,7 +11,7 @@ import pytest
 import torch
 
 import dronekey.training.patch_train as patch_train
-from dronekey.nn.heading_net import Antisymmetric, HeadingNet
+from dronekey.nn.heading_net import Antisymmetric, GatedAntisymmetric, HeadingNet
 from dronekey.perception.heading_model import HeadingModel
 from dronekey.sim_replay.sampler import CropSampler, SamplerConfig
 from dronekey.training.heading_cli import main as heading_main
@@ -21,6 +21,7 @@ from dronekey.training.heading_train import (
     HEADING_RECIPES,
     evaluate,
     export_heading_model,
+    gated_objective,
     train_heading,
 )
 
@@ -31,6 +32,32 @@ def test_antisymmetric_wrapper_gives_the_turned_patch_the_opposite_logit():
     x = torch.randn(3, 3, 64, 64)
     with torch.no_grad():
         np.testing.assert_allclose(model(torch.flip(x, dims=(2, 3))), -model(x), atol=1e-5)
+
+
+def test_gated_wrapper_is_antisymmetric_and_reads_a_closed_gate_as_no_answer():
+    torch.manual_seed(0)
+    net = HeadingNet(outputs=2)
+    model = GatedAntisymmetric(net).eval()
+    x = torch.randn(3, 3, 64, 64)
+    with torch.no_grad():
+        np.testing.assert_allclose(model(torch.flip(x, dims=(2, 3))), -model(x), atol=1e-5)
+        net.head[-1].bias[1] = -30.0  # the gate says no front: the order is a coin flip, however sure
+        net.head[-1].bias[0] = 30.0
+        np.testing.assert_allclose(model(x), 0.0, atol=1e-5)
+        net.head[-1].bias[1] = 30.0  # gate open: the order logit's own answer
+        order = net(x)[:, 0] - net(torch.flip(x, dims=(2, 3)))[:, 0]
+        np.testing.assert_allclose(model(x), order / 2, atol=1e-4)
+    with pytest.raises(ValueError, match="outputs must be 1 or 2, got 3"):
+        HeadingNet(outputs=3)
+
+
+def test_gated_objective_trains_the_gate_on_whether_there_is_an_answer():
+    labels = torch.tensor([1.0, 0.0, NO_ANSWER])
+    right = torch.tensor([[9.0, 9.0], [-9.0, 9.0], [0.0, -9.0]])  # sure orders, gate open, closed
+    wrong_gate = right * torch.tensor([1.0, -1.0])
+    best = np.log(2) / 3  # the no-answer patch's order at 0.5 is as low as its cross-entropy goes
+    assert gated_objective(right, labels, 0.0) == pytest.approx(best, abs=1e-3)
+    assert gated_objective(wrong_gate, labels, 0.0) > best + 5
 
 
 def test_heading_net_repeats_the_convs_of_its_two_last_stages():
@@ -113,6 +140,17 @@ def test_train_export_and_load(tmp_path):
     assert runtime.metadata["trained_on"] == {"toy": True}
     logits = runtime.inference(np.zeros((2, 3, 64, 64), np.float32))
     assert logits.shape == (2,)
+
+
+def test_the_gated_recipe_trains_exports_and_loads(tmp_path):
+    patches, labels = _toy_task()
+    labels[:128] = NO_ANSWER  # a quarter with no answer: the gate must close on them
+    model, history = train_heading(
+        (patches, labels), (patches, labels), tmp_path, replace(HEADING_RECIPES["gated"], epochs=3, batch=64)
+    )
+    assert isinstance(model, GatedAntisymmetric) and history[-1]["accuracy"] > 0.9
+    runtime = HeadingModel(export_heading_model(model, tmp_path / "gated.onnx"))
+    assert runtime.inference(np.zeros((2, 3, 64, 64), np.float32)).shape == (2,)
 
 
 def test_cli_refuses_a_validation_seed_it_trains_on(capsys):
