@@ -21,9 +21,9 @@ Per sequence and per group (a frame-weighted average over the scored frames, ``s
   camera (its forward axis has a positive component along the optical axis), and the confident
   wrong heading % among those frames and among the others (front towards the camera, or square
   across the view). A heading reader that follows the end nearer the camera is wrong with the
-  front away and right with it towards; one that reads the body is as often wrong either way. The
-  split keeps a matrix whose drones mostly fly away from the camera from passing the one for the
-  other;
+  front away and right with it towards; one misled by the look (livery, light) is wrong whichever
+  way the front points. Without the split, a matrix whose drones mostly point their front away
+  makes the second look like the first;
 - why frames were missed, percent of the annotated frames (with detected % they add up to 100):
   the drone read at a wrong range by a published track, held by a tentative track that was not
   confirmed, or not held at all;
