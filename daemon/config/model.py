@@ -36,8 +36,9 @@ class ModelConfig(Section):
     )
     front_back_net: Literal["small", "deep"] = Field(
         "small",
-        description="which shipped front/back classifier: small (0.5 ms a crop) or deep (1.2 ms a crop, "
-        "right on more crops, a pipeline 13-15 % slower; docs/model.md); unused with front_back_path",
+        description="which shipped front/back classifier: small (0.5 ms a crop, gated: it answers 0.5 on a "
+        "body that shows no front) or deep (1.2 ms a crop, no gate, a pipeline 13-15 % slower; "
+        "docs/model.md); unused with front_back_path",
     )
     front_back_path: FilePath | None = Field(
         None, description="ONNX front/back classifier; null: the shipped one that front_back_net names"

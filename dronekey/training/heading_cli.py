@@ -44,16 +44,17 @@ def build_parser() -> argparse.ArgumentParser:
         val_seed=31099,
         val_shards=6,
         epochs=None,
-        epochs_help="passes over the training patches (default: the --net recipe's, 8 small, 4 deep)",
+        epochs_help="passes over the training patches (default: the --net recipe's: 8, or 4 for deep)",
     )
     p.add_argument(
         "--net",
         choices=sorted(HEADING_RECIPES),
-        default="small",
-        help="the classifier's net: small (four convs, the default shipped one), deep (six convs, the "
-        "shipped dronekey_heading_deep.onnx: --seeds 31001 31002 31003 31004 --epochs 4) or gated (the "
-        "small one with a second, symmetric logit that says whether the body shows a front at all and "
-        "pulls the answer to 0.5 when it does not)",
+        default="gated",
+        help="the classifier's net: gated (four convs and a second, symmetric logit that says whether "
+        "the body shows a front at all and pulls the answer to 0.5 when it does not: the shipped "
+        "dronekey_heading.onnx), small (the same without the gate, shipped until the twenty-first "
+        "session) or deep (six convs, the shipped opt-in dronekey_heading_deep.onnx: --seeds 31001 "
+        "31002 31003 31004 --epochs 4)",
     )
     p.add_argument("--export", default=None, help="ONNX file to write (default: OUT/heading.onnx)")
     return p

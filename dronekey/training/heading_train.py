@@ -29,18 +29,21 @@ from dronekey.training.patch_train import (
 
 __all__ = ["HEADING_RECIPE", "HEADING_RECIPES", "evaluate", "export_heading_model", "train_heading"]
 
-# The front/back classifiers' recipes, by the name of the shipped classifier each gives
-# (``heading_model.SHIPPED_HEADING_MODELS``): "small" is the shared recipe (four convs, 177,617
-# parameters, 8 epochs over two seeds' patches); "deep" has two convs at 16 and at 8 px, 128 wide at
-# the end (413,585 parameters), and is meant for four seeds' patches over 4 epochs. The small net
-# was right on 78 % of its own training patches, as on held-out ones: it underfitted, and twice the
-# data did not move it; the deep one reaches 81 % held out (docs/model.md).
+# The front/back classifiers' recipes. "gated" gives the shipped default classifier (the runtime's
+# "small" in ``heading_model.SHIPPED_HEADING_MODELS``, dronekey_heading.onnx; twenty-first session):
+# the four-conv net with a second, symmetric logit that says whether the body shows a front
+# (177,682 parameters, 8 epochs over two seeds' patches). "small" is the same net without the gate,
+# the default until then (177,617 parameters). "deep" has two convs at 16 and at 8 px, 128 wide at
+# the end (413,585 parameters), is meant for four seeds' patches over 4 epochs and gives the opt-in
+# dronekey_heading_deep.onnx. The small net was right on 78 % of its own training patches, as on
+# held-out ones: it underfitted, and twice the data did not move it; the deep one reaches 81 % held
+# out (docs/model.md).
 HEADING_RECIPES = {
+    "gated": PatchRecipe(gated=True),
     "small": PatchRecipe(),
     "deep": PatchRecipe(epochs=4.0, channels=(16, 32, 64, 128), repeats=2),
-    "gated": PatchRecipe(gated=True),
 }
-HEADING_RECIPE = HEADING_RECIPES["small"]
+HEADING_RECIPE = HEADING_RECIPES["gated"]
 
 
 def evaluate(model: torch.nn.Module, patches: np.ndarray, labels: np.ndarray, batch: int = 1024) -> dict:
