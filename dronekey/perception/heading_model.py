@@ -8,8 +8,9 @@ the second stage that decides it from the body, rtmlib style:
   (``dronekey.perception.patch_classifier.canonical_patches``), so the classifier only has to tell
   "nose at the top" from "nose at the bottom".
 - ``HeadingModel.inference``: the ONNX classifier, whose graph is antisymmetric by construction
-  (``logit(x) = (f(x) - f(x turned 180 deg)) / 2``), so the twin order always gets exactly
-  ``1 - p``.
+  (the patch turned 180 degrees gets exactly ``-logit``), so the twin order always gets exactly
+  ``1 - p``. The shipped default is gated: a second, symmetric output of its net says whether the
+  body shows a front at all and pulls ``p`` to 0.5 where it does not (``dronekey.nn.heading_net``).
 - ``HeadingModel.postprocess``: ``p``, the probability that the keypoints' order is the spec's
   (the front hubs are 1 and 4), 0.5 where the front axis is too short to point anywhere (a drone
   seen nose-on or from the side: ``min_axis_ratio``).
@@ -51,9 +52,10 @@ __all__ = [
     "patches_to_tensor",
 ]
 
-# The shipped front/back classifiers by name: "small", the default (four convs, 0.5 ms a crop on one
-# core of the 2-core box), and "deep" (six convs, 1.2 ms a crop, right on 81 % of held-out crops
-# against 79 %; a pipeline 13-15 % slower; docs/model.md).
+# The shipped front/back classifiers by name: "small", the default (four convs and the gate that
+# answers 0.5 on a body showing no front, 0.5 ms a crop on one core of the 2-core box), and "deep"
+# (six convs, no gate, 1.2 ms a crop, right on 81 % of held-out crops against 79 %; a pipeline
+# 13-15 % slower; docs/model.md).
 SHIPPED_HEADING_MODELS = {"small": "dronekey_heading.onnx", "deep": "dronekey_heading_deep.onnx"}
 OUTPUT_NAME = "logit"
 

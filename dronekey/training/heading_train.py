@@ -3,10 +3,11 @@
 Recipe (``patch_train``): AdamW (weight decay 1e-4), one-cycle learning rate up to 3e-3, batches of
 256 patches drawn from the loaded shards, binary cross-entropy with labels smoothed to 0.02 /
 0.98, augmented with what must not decide (the patch turned 180 degrees with its label flipped:
-the twin). The exported graph is ``Antisymmetric(HeadingNet)``: input ``patch`` (batch, 3, 64, 64)
-float32 (``patches_to_tensor``), output ``logit`` (batch,). The "gated" recipe's net gives a second
-logit, trained on whether the patch has an answer at all (``gated_objective``), and exports as
-``GatedAntisymmetric``: the same input and output, the answer pulled to 0.5 where the gate is shut.
+the twin). The exported graph has input ``patch`` (batch, 3, 64, 64) float32 (``patches_to_tensor``)
+and output ``logit`` (batch,). With the default "gated" recipe it is
+``GatedAntisymmetric(HeadingNet(outputs=2))``: a second logit, trained on whether the patch has an
+answer at all (``gated_objective``), pulls the answer to 0.5 where that gate is shut; the "small"
+and "deep" recipes export ``Antisymmetric(HeadingNet)``.
 """
 
 from __future__ import annotations
@@ -27,7 +28,14 @@ from dronekey.training.patch_train import (
     train_patch_classifier,
 )
 
-__all__ = ["HEADING_RECIPE", "HEADING_RECIPES", "evaluate", "export_heading_model", "train_heading"]
+__all__ = [
+    "HEADING_RECIPE",
+    "HEADING_RECIPES",
+    "evaluate",
+    "export_heading_model",
+    "gated_objective",
+    "train_heading",
+]
 
 # The front/back classifiers' recipes. "gated" gives the shipped default classifier (the runtime's
 # "small" in ``heading_model.SHIPPED_HEADING_MODELS``, dronekey_heading.onnx; twenty-first session):
