@@ -100,7 +100,10 @@ def train_heading(
         raise ValueError(f"train has {len(patches)} patches, fewer than one batch of {recipe.batch}")
     torch.manual_seed(recipe.seed)  # the net's initial weights
     net = HeadingNet(recipe.channels, patches.shape[1], recipe.repeats, outputs=2 if recipe.gated else 1)
-    model = GatedAntisymmetric(net) if recipe.gated else Antisymmetric(net)
+    if recipe.gated:  # two logits: the order and the gate, each with its loss
+        model, objective = GatedAntisymmetric(net), gated_objective
+    else:
+        model, objective = Antisymmetric(net), None
 
     def draw(rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:
         idx = rng.integers(0, len(patches), n)
@@ -119,7 +122,7 @@ def train_heading(
         desc="front/back classifier",
         progress=progress,
         resume=resume,
-        objective=gated_objective if recipe.gated else None,
+        objective=objective,
     )
     return model, history
 

@@ -115,12 +115,13 @@ def summarise(scores: Sequence[SequenceScores]) -> dict:
         return np.concatenate([getattr(s, name) for s in drone])
 
     hit = cat("detected")
-    errors = pose_errors(cat("R_track")[hit], cat("t_track")[hit], cat("R_true")[hit], cat("t_true")[hit])
+    R_true = cat("R_true")
+    errors = pose_errors(cat("R_track")[hit], cat("t_track")[hit], R_true[hit], cat("t_true")[hit])
     ap = ap_kp(cat("kp_pred"), cat("kp_true"), cat("area"), cat("score"), has_pred=cat("has_pred"))
     wrong = int(cat("wrong_heading").sum())
     confident_wrong_frames = cat("confident_wrong_heading")
     confident_wrong = int(confident_wrong_frames.sum())
-    away = cat("R_true")[:, 2, 0] > 0  # the body's forward (x) axis along the camera's optical axis
+    away = R_true[:, 2, 0] > 0  # the body's forward (x) axis along the camera's optical axis
     confident_right = int(cat("confident_right_heading").sum())
     front_back = cat("front_back_right")
     asked = np.isfinite(front_back)
