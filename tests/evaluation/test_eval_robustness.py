@@ -15,6 +15,7 @@ from dronekey.evaluation.robustness.run import run_robustness
 from dronekey.evaluation.robustness.scoring import (
     WRONG_HEADING_DEG,
     SequenceScores,
+    axis_exchanged,
     front_back_verdict,
     match_gate_m,
     miss_reason,
@@ -64,6 +65,8 @@ METRICS = {
     "missed_unseen_pct",
     "front_back_frames",
     "front_back_right_pct",
+    "axis_frames",
+    "axis_exchanged_pct",
     "front_away_pct",
     "confident_wrong_heading_front_away_pct",
     "confident_wrong_heading_front_toward_pct",
@@ -285,6 +288,29 @@ def test_front_back_verdict_is_the_classifiers_word_for_the_true_order():
     collapsed = np.tile(truth.mean(axis=0), (4, 1))  # both orders equally far: undecided
     assert np.isnan(front_back_verdict(det(collapsed, 0.9), truth))
     assert np.isnan(front_back_verdict(None, truth))
+
+
+def test_axis_exchanged_tells_a_quarter_turned_order_from_one_that_keeps_the_axes():
+    # a Mini 2 from above: 131 mm along the body (image x), 168 mm across (image y), 1 px per mm
+    truth = np.array([[65.5, 84.0], [-65.5, 84.0], [-65.5, -84.0], [65.5, -84.0]]) + 200.0
+    for kept in ((0, 1, 2, 3), (2, 3, 0, 1), (3, 2, 1, 0), (1, 0, 3, 2)):  # twin and mirrors keep it
+        assert axis_exchanged(truth[list(kept)] + 1.0, truth) == 0.0
+    for turned in ((1, 2, 3, 0), (3, 0, 1, 2), (0, 3, 2, 1), (2, 1, 0, 3)):
+        assert axis_exchanged(truth[list(turned)], truth) == 1.0
+    assert np.isnan(axis_exchanged(truth + 300.0, truth))  # another object
+    assert np.isnan(axis_exchanged(np.tile(truth.mean(axis=0), (4, 1)), truth))  # collapsed: undecided
+    assert np.isnan(axis_exchanged(np.full((4, 2), np.nan), truth))
+
+
+def test_summary_counts_detections_whose_order_exchanges_the_axes():
+    s = _scores([False] * 4, [True] * 4, [False] * 4, [False] * 4, [[0, 0, 0]] * 4)
+    square = np.array([[60.0, 80.0], [-60.0, 80.0], [-60.0, -80.0], [60.0, -80.0]])
+    s.kp_true[:] = square
+    s.kp_pred[:] = square
+    s.kp_pred[1] = square[[1, 2, 3, 0]]  # a quarter turn
+    s.has_pred[3] = False  # no detection: not counted
+    out = summarise([s])
+    assert out["axis_frames"] == 3 and out["axis_exchanged_pct"] == pytest.approx(33.33)
 
 
 def test_wrong_heading_is_a_geodesic_angle_over_90_deg():

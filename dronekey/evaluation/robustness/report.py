@@ -53,8 +53,8 @@ _COLUMNS = (
     ("sure ok", "%", "confident_right_heading_pct", "{:.1f}"),
 )
 
-# The second table: where the frames without the drone's track went, and the front/back classifier
-# per detection (``summary``'s notes).
+# The second table: where the frames without the drone's track went, the front/back classifier per
+# detection, and the detections whose order exchanges the body's axes (``summary``'s notes).
 _MISS_COLUMNS = (
     ("detected", "%", "detected_pct", "{:.1f}"),
     ("range", "%", "missed_wrong_range_pct", "{:.1f}"),
@@ -62,6 +62,7 @@ _MISS_COLUMNS = (
     ("unseen", "%", "missed_unseen_pct", "{:.1f}"),
     ("f/b dets", "", "front_back_frames", "{:d}"),
     ("f/b ok", "%", "front_back_right_pct", "{:.1f}"),
+    ("axis x", "%", "axis_exchanged_pct", "{:.1f}"),
 )
 
 

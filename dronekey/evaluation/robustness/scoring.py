@@ -47,6 +47,8 @@ from dronekey.sim_replay.io.frames import iter_frames
 from dronekey.types import PUBLISHED_STATUSES, KeypointDetection, Track, TrackStatus
 
 __all__ = [
+    "AXIS_EXCHANGING_ORDERS",
+    "AXIS_KEEPING_ORDERS",
     "CONFIDENT_HEADING",
     "LINE_OF_SIGHT_FACTOR",
     "MATCH_GATE_FRACTION",
@@ -54,6 +56,7 @@ __all__ = [
     "ORDER_DECIDED",
     "WRONG_HEADING_DEG",
     "SequenceScores",
+    "axis_exchanged",
     "front_back_verdict",
     "match_gate_m",
     "miss_reason",
@@ -130,6 +133,36 @@ def front_back_verdict(detection: KeypointDetection | None, kp_true: np.ndarray)
         return float("nan")
     p_true_order = detection.heading_p if err < err_twin else 1.0 - detection.heading_p
     return 1.0 if p_true_order > 0.5 else 0.0
+
+
+# The keypoint rectangle's re-orderings (new keypoint i = old order[i]) that keep its front/back
+# axis (the order itself, its twin, its two mirrors) and those that exchange it with the
+# left/right axis (the two quarter turns, the two diagonal reflections).
+AXIS_KEEPING_ORDERS = ((0, 1, 2, 3), (2, 3, 0, 1), (3, 2, 1, 0), (1, 0, 3, 2))
+AXIS_EXCHANGING_ORDERS = ((1, 2, 3, 0), (3, 0, 1, 2), (0, 3, 2, 1), (2, 1, 0, 3))
+
+
+def axis_exchanged(kp_pred: np.ndarray, kp_true: np.ndarray) -> float:
+    """1.0 where a detection's keypoints (4, 2) are in an order that exchanges the body's front/back
+    and left/right axes (a quarter turn of the true order, ``kp_true`` in the spec's order, or a
+    diagonal reflection), 0.0 where the order keeps them; NaN where the detection is not of this
+    drone (centroid farther than half the true keypoints' extent) or is not clearly nearer one
+    kind of order (``ORDER_DECIDED``). Four hubs seen at a distance fit a level pose in such an
+    order too, turned 90 degrees and at a wrong range (a Mini 2 1.28 times too far or 0.78 times
+    too near: its hubs are 131 mm apart along the body and 168 mm across), so it shows as a track
+    off the gate on the drone's line of sight (docs/evaluation.md, "A quarter turn of the order")."""
+    kp = np.asarray(kp_pred, dtype=np.float64)
+    truth = np.asarray(kp_true, dtype=np.float64)
+    extent = float(np.ptp(truth, axis=0).max())
+    if not np.all(np.isfinite(kp)) or np.linalg.norm(kp.mean(axis=0) - truth.mean(axis=0)) > 0.5 * extent:
+        return float("nan")
+    kept, exchanged = (
+        min(float(np.linalg.norm(kp[list(o)] - truth, axis=1).mean()) for o in orders)
+        for orders in (AXIS_KEEPING_ORDERS, AXIS_EXCHANGING_ORDERS)
+    )
+    if min(kept, exchanged) >= ORDER_DECIDED * max(kept, exchanged):
+        return float("nan")
+    return 1.0 if exchanged < kept else 0.0
 
 
 def _stack(rows: list, shape: tuple[int, ...], dtype=np.float64) -> np.ndarray:

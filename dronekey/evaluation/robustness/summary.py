@@ -30,7 +30,11 @@ Per sequence and per group (a frame-weighted average over the scored frames, ``s
 - front/back per detection: of the frames whose best detection is the drone's with a decided
   keypoint order and an answer from the front/back classifier, the percent where it favoured the
   true order. The tracker adds these answers up, so this says whether a wrong heading is the
-  classifier's or the tracker's.
+  classifier's or the tracker's;
+- axis exchanged per detection: of the frames whose best detection is the drone's with a clearly
+  decided kind of order (``scoring.axis_exchanged``), the percent whose order exchanges the body's
+  front/back and left/right axes (a quarter turn): such a detection reads the drone at a wrong
+  range, whatever the front/back classifier says.
 """
 
 from __future__ import annotations
@@ -41,7 +45,7 @@ import numpy as np
 
 from dronekey.evaluation.metrics import ap_kp
 from dronekey.evaluation.pose import pose_errors, rounded
-from dronekey.evaluation.robustness.scoring import SequenceScores
+from dronekey.evaluation.robustness.scoring import SequenceScores, axis_exchanged
 
 __all__ = ["summarise"]
 
@@ -63,7 +67,8 @@ def summarise(scores: Sequence[SequenceScores]) -> dict:
     ``confident_wrong_heading_frames``, ``confident_wrong_heading_pct``, ``wrong_heading_frames``,
     ``wrong_heading_pct`` (any confidence), ``confident_right_heading_frames``,
     ``confident_right_heading_pct``, ``missed_wrong_range_pct``, ``missed_unconfirmed_pct``,
-    ``missed_unseen_pct``, ``front_back_frames``, ``front_back_right_pct``, ``front_away_pct``,
+    ``missed_unseen_pct``, ``front_back_frames``, ``front_back_right_pct``, ``axis_frames``,
+    ``axis_exchanged_pct``, ``front_away_pct``,
     ``confident_wrong_heading_front_away_pct`` and ``confident_wrong_heading_front_toward_pct``;
     figures that need a drone sequence are None without one, and a figure with no frame to average
     is None.
@@ -104,6 +109,8 @@ def summarise(scores: Sequence[SequenceScores]) -> dict:
         "missed_unseen_pct": None,
         "front_back_frames": None,
         "front_back_right_pct": None,
+        "axis_frames": None,
+        "axis_exchanged_pct": None,
         "front_away_pct": None,
         "confident_wrong_heading_front_away_pct": None,
         "confident_wrong_heading_front_toward_pct": None,
@@ -125,6 +132,10 @@ def summarise(scores: Sequence[SequenceScores]) -> dict:
     confident_right = int(cat("confident_right_heading").sum())
     front_back = cat("front_back_right")
     asked = np.isfinite(front_back)
+    has_pred = cat("has_pred")
+    pairs = zip(cat("kp_pred")[has_pred], cat("kp_true")[has_pred], strict=True)
+    exchanged = np.array([axis_exchanged(pred, true) for pred, true in pairs])
+    decided = np.isfinite(exchanged)
     out.update(
         detected_frames=int(hit.sum()),
         detected_pct=rounded(_pct(int(hit.sum()), n_ann), 2),
@@ -144,6 +155,8 @@ def summarise(scores: Sequence[SequenceScores]) -> dict:
         missed_unseen_pct=rounded(_pct(int(cat("missed_unseen").sum()), n_ann), 2),
         front_back_frames=int(asked.sum()),
         front_back_right_pct=rounded(_pct(int(front_back[asked].sum()), int(asked.sum())), 2),
+        axis_frames=int(decided.sum()),
+        axis_exchanged_pct=rounded(_pct(int(exchanged[decided].sum()), int(decided.sum())), 2),
         front_away_pct=rounded(_pct(int(away.sum()), n_ann), 2),
         confident_wrong_heading_front_away_pct=rounded(
             _pct(int(confident_wrong_frames[away].sum()), int(away.sum())), 2
