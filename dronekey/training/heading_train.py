@@ -59,7 +59,8 @@ def evaluate(model: torch.nn.Module, patches: np.ndarray, labels: np.ndarray, ba
     over the answerable ones, accuracy, negative log-likelihood, and the share of confident answers
     (|2p - 1| >= 0.5) and of confident wrong ones; over the others (``no_answer_*``, NaN when there
     are none), their count, the mean |2p - 1| and the share answered confidently, which should
-    both be small."""
+    both be small. A figure with nothing to average is None (null in history.json and the model's
+    metadata, which strict JSON readers accept; NaN they refuse)."""
     logits = patch_logits(model, patches, batch)
     p = 1.0 / (1.0 + np.exp(-logits))
     answerable = labels != NO_ANSWER
@@ -68,17 +69,16 @@ def evaluate(model: torch.nn.Module, patches: np.ndarray, labels: np.ndarray, ba
     confident = np.abs(2 * p_a - 1) >= 0.5
     nll = -np.mean(y_a * np.log(p_a + 1e-7) + (1 - y_a) * np.log(1 - p_a + 1e-7))
     sure_of_nothing = np.abs(2 * p[~answerable] - 1)
-    nan = float("nan")
     return {
         "samples": int(answerable.sum()),
         "accuracy": float(right.mean()),
         "nll": float(nll),
         "confident": float(confident.mean()),
         "confident_wrong": float((confident & ~right).mean()),
-        "confident_accuracy": float(right[confident].mean()) if confident.any() else nan,
+        "confident_accuracy": float(right[confident].mean()) if confident.any() else None,
         "no_answer_samples": int((~answerable).sum()),
-        "no_answer_certainty": float(sure_of_nothing.mean()) if len(sure_of_nothing) else nan,
-        "no_answer_confident": float((sure_of_nothing >= 0.5).mean()) if len(sure_of_nothing) else nan,
+        "no_answer_certainty": float(sure_of_nothing.mean()) if len(sure_of_nothing) else None,
+        "no_answer_confident": float((sure_of_nothing >= 0.5).mean()) if len(sure_of_nothing) else None,
     }
 
 

@@ -35,17 +35,18 @@ def evaluate_verifier(
     model: torch.nn.Module, patches: np.ndarray, labels: np.ndarray, presence: np.ndarray
 ) -> dict:
     """Figures of the verifier at p = 0.5 on uint8 patches with labels 1 (drone) / 0: drones kept,
-    drone-free patches rejected (all of them, and those the network scored 0.9 or more), AUC."""
+    drone-free patches rejected (all of them, and those the network scored 0.9 or more), AUC; a figure
+    with nothing to average is None (strict JSON in history.json and the model's metadata)."""
     p = 1.0 / (1.0 + np.exp(-patch_logits(model, patches)))
     drone, free = labels > 0.5, labels <= 0.5
     hard = free & (presence >= 0.9)
     out = {
         "drones": int(drone.sum()),
         "drone_free": int(free.sum()),
-        "drones_kept": float((p[drone] >= 0.5).mean()) if drone.any() else float("nan"),
-        "drone_free_rejected": float((p[free] < 0.5).mean()) if free.any() else float("nan"),
+        "drones_kept": float((p[drone] >= 0.5).mean()) if drone.any() else None,
+        "drone_free_rejected": float((p[free] < 0.5).mean()) if free.any() else None,
         "hard_drone_free": int(hard.sum()),
-        "hard_drone_free_rejected": float((p[hard] < 0.5).mean()) if hard.any() else float("nan"),
+        "hard_drone_free_rejected": float((p[hard] < 0.5).mean()) if hard.any() else None,
     }
     if drone.any() and free.any():  # AUC: the chance a drone outscores a drone-free patch
         ranks = np.argsort(np.argsort(p)) + 1.0

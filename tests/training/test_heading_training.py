@@ -3,6 +3,7 @@ keypoint network's own keypoints, a short training run, the ONNX export, and the
 
 from __future__ import annotations
 
+import json
 import logging
 from dataclasses import replace
 
@@ -110,7 +111,11 @@ def test_evaluate_scores_answerable_patches_and_the_doubt_on_the_others():
     scores = evaluate(model, patches, labels)
     assert scores["samples"] == 192 and scores["no_answer_samples"] == 64
     assert 0 <= scores["no_answer_certainty"] <= 1 and 0 <= scores["no_answer_confident"] <= 1
-    assert np.isnan(evaluate(model, patches[64:], labels[64:])["no_answer_certainty"])
+    assert evaluate(model, patches[64:], labels[64:])["no_answer_certainty"] is None  # strict JSON: null
+
+
+def _refuse_constant(name: str):
+    raise AssertionError(f"{name} in JSON: not strict JSON")
 
 
 def _toy_task(n: int = 512) -> tuple[np.ndarray, np.ndarray]:
@@ -134,6 +139,9 @@ def test_train_export_and_load(tmp_path):
     )
     assert (tmp_path / "last.pt").is_file() and (tmp_path / "history.json").is_file()
     assert history[-1]["accuracy"] > 0.9
+    # no no-answer patch to average over: null, not the NaN token strict JSON readers refuse
+    strict = json.loads((tmp_path / "history.json").read_text(), parse_constant=_refuse_constant)
+    assert strict[-1]["no_answer_certainty"] is None
     assert sum(p.numel() for p in model.f.parameters()) == 413_585  # the deep recipe's net
     path = export_heading_model(model, tmp_path / "heading.onnx", {"trained_on": {"toy": True}})
     runtime = HeadingModel(path)
