@@ -57,7 +57,7 @@ HEADING_RECIPE = HEADING_RECIPES["gated"]
 def evaluate(model: torch.nn.Module, patches: np.ndarray, labels: np.ndarray, batch: int = 1024) -> dict:
     """On uint8 patches with labels 1 (nose at the top), 0, or ``NO_ANSWER`` (the body shows no front):
     over the answerable ones, accuracy, negative log-likelihood, and the share of confident answers
-    (|2p - 1| >= 0.5) and of confident wrong ones; over the others (``no_answer_*``, NaN when there
+    (|2p - 1| >= 0.5) and of confident wrong ones; over the others (``no_answer_*``, None when there
     are none), their count, the mean |2p - 1| and the share answered confidently, which should
     both be small. A figure with nothing to average is None (null in history.json and the model's
     metadata, which strict JSON readers accept; NaN they refuse)."""
