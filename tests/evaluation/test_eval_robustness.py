@@ -188,6 +188,7 @@ def _scores(
         missed_unconfirmed=np.array([m == "unconfirmed" for m in miss], bool),
         missed_unseen=np.array([m == "unseen" for m in miss], bool),
         front_back_right=np.asarray(fb if fb is not None else [np.nan] * n, float),
+        axis_exchanged=np.full(n, np.nan),
     )
 
 
@@ -309,6 +310,12 @@ def test_summary_counts_detections_whose_order_exchanges_the_axes():
     s.kp_pred[:] = square
     s.kp_pred[1] = square[[1, 2, 3, 0]]  # a quarter turn
     s.has_pred[3] = False  # no detection: not counted
+    s.axis_exchanged = np.array(  # as score_sequence records it, frame by frame
+        [
+            axis_exchanged(p, t) if has else np.nan
+            for p, t, has in zip(s.kp_pred, s.kp_true, s.has_pred, strict=True)
+        ]
+    )
     out = summarise([s])
     assert out["axis_frames"] == 3 and out["axis_exchanged_pct"] == pytest.approx(33.33)
 

@@ -40,7 +40,7 @@ import numpy as np
 from dronekey.evaluation.pose import published_track_rank, sequence_spec
 from dronekey.evaluation.robustness.dither import FrameDither
 from dronekey.geometry.rotations import geodesic_angle_deg, quat_wxyz_to_matrix
-from dronekey.perception.keypoint_order import HEADING_TWIN
+from dronekey.perception.keypoint_order import HEADING_TWIN, SYMMETRIES
 from dronekey.pipeline import TrackingPipeline
 from dronekey.sim_replay.annotations import SequenceAnnotations
 from dronekey.sim_replay.io.frames import iter_frames
@@ -122,24 +122,19 @@ def front_back_verdict(detection: KeypointDetection | None, kp_true: np.ndarray)
     or where the detection's keypoints are not clearly nearer one order (``ORDER_DECIDED``)."""
     if detection is None or not np.isfinite(detection.heading_p) or detection.heading_p == 0.5:
         return float("nan")
-    kp = np.asarray(detection.keypoints_px, dtype=np.float64)
-    truth = np.asarray(kp_true, dtype=np.float64)
-    extent = float(np.ptp(truth, axis=0).max())
-    if np.linalg.norm(kp.mean(axis=0) - truth.mean(axis=0)) > 0.5 * extent:
+    in_order = _nearer(detection.keypoints_px, kp_true, (SYMMETRIES[0],), (HEADING_TWIN,))
+    if in_order is None:
         return float("nan")
-    err = float(np.linalg.norm(kp - truth, axis=1).mean())
-    err_twin = float(np.linalg.norm(kp[HEADING_TWIN] - truth, axis=1).mean())
-    if min(err, err_twin) >= ORDER_DECIDED * max(err, err_twin):
-        return float("nan")
-    p_true_order = detection.heading_p if err < err_twin else 1.0 - detection.heading_p
+    p_true_order = detection.heading_p if in_order else 1.0 - detection.heading_p
     return 1.0 if p_true_order > 0.5 else 0.0
 
 
 # The keypoint rectangle's re-orderings (new keypoint i = old order[i]) that keep its front/back
-# axis (the order itself, its twin, its two mirrors) and those that exchange it with the
-# left/right axis (the two quarter turns, the two diagonal reflections).
-AXIS_KEEPING_ORDERS = ((0, 1, 2, 3), (2, 3, 0, 1), (3, 2, 1, 0), (1, 0, 3, 2))
-AXIS_EXCHANGING_ORDERS = ((1, 2, 3, 0), (3, 0, 1, 2), (0, 3, 2, 1), (2, 1, 0, 3))
+# axis (its symmetries: the order itself, its mirrors, its twin) and those that exchange it with the
+# left/right axis (each of them turned by a quarter: the two quarter turns and the two diagonal
+# reflections).
+AXIS_KEEPING_ORDERS = SYMMETRIES
+AXIS_EXCHANGING_ORDERS = tuple(tuple(order[i] for i in (1, 2, 3, 0)) for order in SYMMETRIES)
 
 
 def axis_exchanged(kp_pred: np.ndarray, kp_true: np.ndarray) -> float:
@@ -151,18 +146,27 @@ def axis_exchanged(kp_pred: np.ndarray, kp_true: np.ndarray) -> float:
     order too, turned 90 degrees and at a wrong range (a Mini 2 1.28 times too far or 0.78 times
     too near: its hubs are 131 mm apart along the body and 168 mm across), so it shows as a track
     off the gate on the drone's line of sight (docs/evaluation.md, "A quarter turn of the order")."""
+    exchanged = _nearer(kp_pred, kp_true, AXIS_EXCHANGING_ORDERS, AXIS_KEEPING_ORDERS)
+    return float("nan") if exchanged is None else float(exchanged)
+
+
+def _nearer(kp_pred: np.ndarray, kp_true: np.ndarray, first, second) -> bool | None:
+    """Whether keypoints (4, 2) lie nearer the truth (4, 2, spec order) in one of the re-orderings
+    ``first`` than in any of ``second`` (mean distance of the nearest of each); None where they are
+    not this drone's (centroid farther than half the true keypoints' extent, or not finite) or not
+    clearly nearer either (the nearer's error at least ``ORDER_DECIDED`` of the other's)."""
     kp = np.asarray(kp_pred, dtype=np.float64)
     truth = np.asarray(kp_true, dtype=np.float64)
     extent = float(np.ptp(truth, axis=0).max())
     if not np.all(np.isfinite(kp)) or np.linalg.norm(kp.mean(axis=0) - truth.mean(axis=0)) > 0.5 * extent:
-        return float("nan")
-    kept, exchanged = (
+        return None
+    err_first, err_second = (
         min(float(np.linalg.norm(kp[list(o)] - truth, axis=1).mean()) for o in orders)
-        for orders in (AXIS_KEEPING_ORDERS, AXIS_EXCHANGING_ORDERS)
+        for orders in (first, second)
     )
-    if min(kept, exchanged) >= ORDER_DECIDED * max(kept, exchanged):
-        return float("nan")
-    return 1.0 if exchanged < kept else 0.0
+    if min(err_first, err_second) >= ORDER_DECIDED * max(err_first, err_second):
+        return None
+    return err_first < err_second
 
 
 def _stack(rows: list, shape: tuple[int, ...], dtype=np.float64) -> np.ndarray:
@@ -190,6 +194,8 @@ class SequenceScores:
     has_pred : (N,) a detection exists.
     missed_wrong_range, missed_unconfirmed, missed_unseen : (N,) why a frame without the drone's
         track missed it (the module's notes); with ``detected`` exactly one of the four holds.
+    axis_exchanged : (N,) ``axis_exchanged`` of the pipeline's best detection: 1.0 where its
+        keypoint order exchanges the body's axes, 0.0 where it keeps them, NaN undecided or none.
     front_back_right : (N,) 1.0 where the front/back classifier favoured the true order for the
         drone's detection, 0.0 where it favoured the twin, NaN where it was not asked, answered
         0.5, or the detection is not the drone's or its order is undecided.
@@ -217,6 +223,7 @@ class SequenceScores:
     missed_unconfirmed: np.ndarray
     missed_unseen: np.ndarray
     front_back_right: np.ndarray
+    axis_exchanged: np.ndarray
     fps: float = float("nan")
 
     @property
@@ -294,6 +301,7 @@ def score_sequence(
             "has_pred",
             "miss",
             "front_back",
+            "axis",
         )
     }
     false_ids: set[int] = set()
@@ -354,6 +362,7 @@ def score_sequence(
         rows["kp_pred"].append(det.keypoints_px if det is not None else np.zeros((4, 2)))
         rows["score"].append(det.presence if det is not None else 0.0)
         rows["front_back"].append(front_back_verdict(det, ann.keypoints_px))
+        rows["axis"].append(axis_exchanged(det.keypoints_px, ann.keypoints_px) if det is not None else np.nan)
     return SequenceScores(
         no_drone=no_drone,
         false_frame=_stack(rows["false"], (), bool),
@@ -376,5 +385,6 @@ def score_sequence(
         missed_unconfirmed=_stack([m == "unconfirmed" for m in rows["miss"]], (), bool),
         missed_unseen=_stack([m == "unseen" for m in rows["miss"]], (), bool),
         front_back_right=_stack(rows["front_back"], ()),
+        axis_exchanged=_stack(rows["axis"], ()),
         fps=n / proc_s if proc_s > 0 else float("nan"),
     )

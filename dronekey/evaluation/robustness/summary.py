@@ -45,7 +45,7 @@ import numpy as np
 
 from dronekey.evaluation.metrics import ap_kp
 from dronekey.evaluation.pose import pose_errors, rounded
-from dronekey.evaluation.robustness.scoring import SequenceScores, axis_exchanged
+from dronekey.evaluation.robustness.scoring import SequenceScores
 
 __all__ = ["summarise"]
 
@@ -132,9 +132,7 @@ def summarise(scores: Sequence[SequenceScores]) -> dict:
     confident_right = int(cat("confident_right_heading").sum())
     front_back = cat("front_back_right")
     asked = np.isfinite(front_back)
-    has_pred = cat("has_pred")
-    pairs = zip(cat("kp_pred")[has_pred], cat("kp_true")[has_pred], strict=True)
-    exchanged = np.array([axis_exchanged(pred, true) for pred, true in pairs])
+    exchanged = cat("axis_exchanged")
     decided = np.isfinite(exchanged)
     out.update(
         detected_frames=int(hit.sum()),
