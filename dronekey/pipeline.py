@@ -252,6 +252,12 @@ class TrackingPipeline:
         needs only one search to start a track (its crop follows it every frame from then on), so
         6 (5 Hz at 30 fps) delays its track by at most 0.2 s and cuts the search's cost per frame
         six-fold (17.4 to about 3 ms a frame on the 2-core box, one drone tracked).
+    wide_look_every : frames between the frames on which a track may look wide
+        (``Localizer.track_looking_wide``: a crop the network is not sure of, presence below
+        ``LocalizerConfig.wide_look_presence``, is read again twice as large, in case it was sized
+        from a range read too far and clips the drone), staggered over the tracks; a track whose
+        wide look was taken may look again the next frame. 1 (every frame) costs nothing where the
+        network is sure of its crops (docs/evaluation.md, twenty-third session); 0 never looks wide.
     """
 
     def __init__(
@@ -272,7 +278,9 @@ class TrackingPipeline:
         search_every: int = 30,
         max_search_candidates: int = 2,
         search_more_every: int = 6,
+        wide_look_every: int = 1,
     ) -> None:
+        self.wide_look_every = int_at_least("wide_look_every", wide_look_every, 0)
         self.search_every = int_at_least("search_every", search_every, 0)
         self.max_search_candidates = int_at_least("max_search_candidates", max_search_candidates, 0)
         self.search_more_every = int_at_least("search_more_every", search_more_every, 1)
@@ -296,6 +304,7 @@ class TrackingPipeline:
         self.frames = 0
         self.helper_cpu_s = 0.0  # CPU seconds spent on helper threads (the early saliency passes)
         self._previous_image: FrameImage | None = None
+        self._widened: set[int] = set()  # tracks whose wide look was taken last frame
 
     def info(self) -> dict:
         """Camera, model and drone, for status messages and the Zenoh ``info`` queryable."""
@@ -379,6 +388,11 @@ class TrackingPipeline:
             return 0, True
         return self.max_search_candidates, True
 
+    def _wide_look_due(self, track_id: int) -> bool:
+        """Whether a track's drone is read in a wide crop this frame (``wide_look_every``)."""
+        every = self.wide_look_every
+        return every > 0 and ((self.frames + track_id) % every == 0 or track_id in self._widened)
+
     def _track_crops(
         self, frame: Frame, w: int, h: int
     ) -> tuple[list[Measured], list, list[str], tuple[bool, int]]:
@@ -403,7 +417,10 @@ class TrackingPipeline:
         taken: list = []  # keypoint boxes already measured this frame
         threshold = self.localizer.config.presence_threshold
         found = []  # (prediction, detection, keypoint box) of the crops that hold a drone, best first
-        for p, det in zip(owners, self.localizer.track_many(frame.image, boxes, verify), strict=True):
+        wide = [self._wide_look_due(p.track_id) for p in owners]
+        dets, widened = self.localizer.track_looking_wide(frame.image, boxes, verify, wide)
+        self._widened = {p.track_id for p, wide_taken in zip(owners, widened, strict=True) if wide_taken}
+        for p, det in zip(owners, dets, strict=True):
             if det.presence >= threshold:
                 det = self.poses.order_keypoints(det, (p.R, p.t), p.track_id)
                 found.append((p, det, box_from_keypoints(det.keypoints_px, self.spec)))

@@ -24,6 +24,13 @@ class TrackingConfig(Section):
     search_more_every: int = Field(
         6, ge=1, le=100000, description="frames between searches for more drones while tracking"
     )
+    wide_look_every: int = Field(
+        1,
+        ge=0,
+        le=100000,
+        description="frames between a track's wide looks (its drone read again in a crop twice as large, "
+        "so that a crop cut too small from a range read too far cannot clip the drone; 0: never)",
+    )
     max_search_candidates: int = Field(
         2, ge=0, le=16, description="crops a search for more drones may check (0: no such search)"
     )

@@ -174,6 +174,17 @@ class KeypointReading(NamedTuple):
         """(B,) float32, the network's presence per crop."""
         return self.raw.presence if self.raw is not None else np.zeros(0, np.float32)
 
+    def joined(self, other: KeypointReading) -> KeypointReading:
+        """This reading's crops followed by ``other``'s (two batches read as one)."""
+        if not other.rois:
+            return self
+        if not self.rois:
+            return other
+        raw = RawOutputs(
+            *(None if a is None else np.concatenate([a, b]) for a, b in zip(self.raw, other.raw, strict=True))
+        )
+        return KeypointReading(np.concatenate([self.crops, other.crops]), raw, self.rois + other.rois)
+
     def subset(self, select: Sequence[int]) -> KeypointReading:
         """The reading of crops ``select`` only, in that order."""
         idx = np.asarray(select, dtype=np.intp)

@@ -75,6 +75,18 @@ class LocalizerConfig:
         region (building edges, or wires joining blobs into one) is searched at its strongest
         saliency peaks instead, one candidate per peak sized by the peak's own neighbourhood.
     peaks_per_region : peaks proposed per oversized region.
+    wide_look_scale, wide_look_ratio, wide_look_presence : a wide look (``track_looking_wide``)
+        reads a track's drone again in a crop ``wide_look_scale`` times the side of its own, same
+        centre, when the network's presence on its own crop is below ``wide_look_presence``, and
+        takes that reading when the drone comes out more than ``wide_look_ratio`` times wider in it
+        (or only in it). The recut above cannot mend a crop cut too small: the network reads a
+        drone clipped by its crop with its keypoints crowded together, and the recut then cuts
+        tighter still (s8031 of tuning seed 8001: a track read too far, crops of 32-35 px on a
+        drone 64-67 px across, keypoints spread 7 px, the range run out to 17-19 m). The network
+        also reads a drone's size partly from its crop (a rightly framed drone read 1.06-1.48x its
+        spread in a crop twice as large), hence a ratio of 2; and it is sure (presence 1.00) of a
+        drone it sees whole at 0.6-1.25x the right framing, less so of a clipped one (0.09-0.97
+        at 0.3-0.45x), so a sure crop is not looked at again (the look costs nothing then).
     """
 
     presence_threshold: float = 0.5
@@ -88,6 +100,9 @@ class LocalizerConfig:
     recut_scale: float = 0.05
     max_drone_px: float = 600.0
     peaks_per_region: int = 3
+    wide_look_scale: float = 2.0
+    wide_look_ratio: float = 2.0
+    wide_look_presence: float = 0.999
 
     def __post_init__(self) -> None:
         if not 0.0 < self.presence_threshold < 1.0:
@@ -101,13 +116,26 @@ class LocalizerConfig:
                 "need max_drone_px > 0 and peaks_per_region >= 1, "
                 f"got {self.max_drone_px} and {self.peaks_per_region}"
             )
+        if not self.wide_look_scale > 1.0 or not self.wide_look_ratio >= 1.0:
+            raise ValueError(
+                "need wide_look_scale > 1 and wide_look_ratio >= 1, "
+                f"got {self.wide_look_scale} and {self.wide_look_ratio}"
+            )
+        if not 0.0 < self.wide_look_presence <= 1.0:
+            raise ValueError(f"wide_look_presence must be in (0, 1], got {self.wide_look_presence}")
+
+
+def _spread(keypoints_px: np.ndarray) -> float:
+    """Largest distance between two keypoints (px)."""
+    kp = np.asarray(keypoints_px, dtype=np.float64)
+    return float(max(np.linalg.norm(kp[i] - kp[j]) for i in range(len(kp)) for j in range(i + 1, len(kp))))
 
 
 def box_from_keypoints(keypoints_px: np.ndarray, spec: DroneSpec) -> Box:
     """Approximate box of the whole drone from its four hubs: the hubs' box grown by a propeller
     radius scaled like the hubs' apparent spread."""
     kp = np.asarray(keypoints_px, dtype=np.float64)
-    spread = max(np.linalg.norm(kp[i] - kp[j]) for i in range(4) for j in range(i + 1, 4))
+    spread = _spread(kp)
     margin = 0.5 * spec.prop_diameter_m / spec.diagonal_m * spread + 1.0
     lo, hi = kp.min(axis=0) - margin, kp.max(axis=0) + margin
     return float(lo[0]), float(lo[1]), float(hi[0] - lo[0]), float(hi[1] - lo[1])
@@ -181,13 +209,48 @@ class Localizer:
         one more batch for the crops that need a recut (the patch classifiers run on each crop's
         last cut only). ``verify``: per box, whether the drone verifier looks at its crop (all by
         default; a confirmed track's crop need not: ``KeypointModel.finish``)."""
+        return self.track_looking_wide(frame, boxes, verify)[0]
+
+    def track_looking_wide(
+        self,
+        frame: np.ndarray | FrameImage,
+        boxes: Sequence[Box],
+        verify: Sequence[bool] | None = None,
+        wide: Sequence[bool] | None = None,
+    ) -> tuple[list[KeypointDetection], list[bool]]:
+        """``track_many``, with a wide look for the boxes ``wide`` flags whose crop the network is
+        not sure of (presence below ``LocalizerConfig.wide_look_presence``): their drone is read
+        again in a crop ``wide_look_scale`` times larger (one more batch, only when some crop needs
+        it), and that reading is taken (then recut on its keypoints like any other) when
+        ``_reads_wider`` holds. Returns the detections and, per box, whether its wide reading was
+        taken."""
         if not boxes:
-            return []
+            return [], []
+        cfg = self.config
+        asked = [True] * len(boxes) if verify is None else list(verify)
         reading = self.model.read(frame, [self.crop.roi(box) for box in boxes])
         rough = self.model.rough(reading)
-        cfg = self.config
+        doubtful = [
+            k for k, look in enumerate(wide or ()) if look and rough[k].presence < cfg.wide_look_presence
+        ]
+        wide_index = {k: len(boxes) + i for i, k in enumerate(doubtful)}  # box -> its wide crop's index
+        if doubtful:
+            wide_rois = []
+            for k in doubtful:
+                x0, y0, side = rough[k].roi
+                centre_x, centre_y = x0 + side / 2 - 0.5, y0 + side / 2 - 0.5
+                wide_rois.append(roi_around_box(centre_x, centre_y, side * cfg.wide_look_scale))
+            wide_reading = self.model.read(frame, wide_rois)
+            reading = reading.joined(wide_reading)
+            rough = rough + self.model.rough(wide_reading)
+            asked += [asked[k] for k in doubtful]
+        source = list(range(len(boxes)))  # per box, the crop of the reading it keeps
+        for k, j in wide_index.items():
+            if self._reads_wider(rough[k], rough[j]):
+                source[k] = j
         recut = []
-        for k, det in enumerate(rough):
+        for k, src in enumerate(source):
+            det = rough[src]
             if det.presence < cfg.presence_threshold or not np.all(np.isfinite(det.keypoints_px)):
                 continue
             x0, y0, side = det.roi
@@ -195,13 +258,29 @@ class Localizer:
             shift = max(abs(nx + nside / 2 - x0 - side / 2), abs(ny + nside / 2 - y0 - side / 2)) / side
             if shift > cfg.recut_shift or abs(nside / side - 1.0) > cfg.recut_scale:
                 recut.append(k)
-        asked = [True] * len(boxes) if verify is None else list(verify)
-        recuts = self.refine_many(frame, [rough[k] for k in recut], [asked[k] for k in recut])
+        recuts = self.refine_many(frame, [rough[source[k]] for k in recut], [asked[source[k]] for k in recut])
         again = dict(zip(recut, recuts, strict=True))
         held = {k for k, det in again.items() if det.presence >= cfg.presence_threshold}
-        first_cut = [k for k in range(len(rough)) if k not in held]  # no recut, or the recut lost it
-        dets = dict(zip(first_cut, self.model.finish(reading, first_cut, asked), strict=True))
-        return [dets[k] if k in dets else again[k] for k in range(len(rough))]
+        first_cut = [k for k in range(len(boxes)) if k not in held]  # no recut, or the recut lost it
+        finished = self.model.finish(reading, [source[k] for k in first_cut], asked)
+        dets = dict(zip(first_cut, finished, strict=True))
+        widened = [source[k] != k for k in range(len(boxes))]
+        return [dets[k] if k in dets else again[k] for k in range(len(boxes))], widened
+
+    def _reads_wider(self, narrow: KeypointDetection, wide: KeypointDetection) -> bool:
+        """Whether a wide look's reading replaces its narrow crop's: it holds a drone, centred inside
+        the narrow crop, and the narrow crop holds none or reads it more than ``wide_look_ratio``
+        times smaller (keypoint spread, px): the narrow crop clipped the drone."""
+        cfg = self.config
+        if wide.presence < cfg.presence_threshold or not np.all(np.isfinite(wide.keypoints_px)):
+            return False
+        x0, y0, side = narrow.roi
+        cx, cy = np.mean(wide.keypoints_px, axis=0)
+        if not (x0 <= cx < x0 + side and y0 <= cy < y0 + side):
+            return False
+        if narrow.presence < cfg.presence_threshold or not np.all(np.isfinite(narrow.keypoints_px)):
+            return True
+        return _spread(wide.keypoints_px) > cfg.wide_look_ratio * _spread(narrow.keypoints_px)
 
     def refine(self, frame: np.ndarray | FrameImage, detection: KeypointDetection) -> KeypointDetection:
         """Re-crop on the box implied by a detection's keypoints and run the network again."""

@@ -7,7 +7,7 @@ from daemon_media import write_untrained_model
 
 from dronekey.geometry.camera import CalibrationError
 from dronekey.geometry.drone_spec import load_spec
-from dronekey.perception.localizer import LocalizerConfig, box_from_keypoints, box_from_pose
+from dronekey.perception.localizer import LocalizerConfig, _spread, box_from_keypoints, box_from_pose
 from dronekey.pipeline import TrackingPipeline, _Background
 from dronekey.sim_replay.backgrounds import landscape, sky, urban
 from dronekey.sim_replay.drone_look import DroneStyle
@@ -196,7 +196,13 @@ def test_the_verifier_looks_at_tentative_tracks_only():
 
 
 @pytest.mark.parametrize(
-    ("name", "value"), [("search_more_every", 0), ("search_every", -1), ("max_search_candidates", True)]
+    ("name", "value"),
+    [
+        ("search_more_every", 0),
+        ("search_every", -1),
+        ("max_search_candidates", True),
+        ("wide_look_every", -1),
+    ],
 )
 def test_bad_search_settings_name_the_argument(name, value):
     with pytest.raises(ValueError, match=f"{name} must be an integer"):
@@ -216,3 +222,77 @@ def test_of_two_tracks_on_one_drone_the_wider_reading_wins():
     assert [k[0] for k in kept] == ["track 4", "track 7"]
     similar = ("track 5", None, (99.0, 99.0, 32.0, 32.0))  # under 10 % wider: the ranking decides
     assert [k[0] for k in _one_reading_per_drone([narrowed, similar])] == ["track 2"]
+
+
+def _clipped_and_right_boxes(rf, shrink: float):
+    """The keypoint box of the rendered drone, and the same box shrunk about its centre."""
+    x, y, w, h = box_from_keypoints(rf.record.drone.keypoints_px, SPEC)
+    cx, cy = x + w / 2, y + h / 2
+    return (cx - shrink * w / 2, cy - shrink * h / 2, shrink * w, shrink * h), (x, y, w, h)
+
+
+def test_a_wide_look_mends_a_crop_that_clips_its_drone():
+    """Shipped model, seq13 (seed 101, the drone 66 px across its hubs): a crop cut from a box 0.4x
+    the drone's (a track read 2.5x too far) clips it, and the network crowds its keypoints (under
+    half the true spread); the wide look reads the drone in a crop twice as large, is taken, and
+    after its recut the spread is the drone's. On the right box the wide look is not taken and the
+    detection is the plain track's."""
+    pipeline = TrackingPipeline(preset_camera(), drone=SPEC)
+    localizer = pipeline.localizer
+    rf = next(iter(build_sequence("seq13", seed=101, frames=1)))
+    true_spread = _spread(rf.record.drone.keypoints_px)
+    clipped, right = _clipped_and_right_boxes(rf, 0.4)
+    narrow = localizer.track_many(rf.image, [clipped])[0]
+    assert _spread(narrow.keypoints_px) < 0.5 * true_spread
+    (looked,), (taken,) = localizer.track_looking_wide(rf.image, [clipped], wide=[True])
+    assert taken
+    assert _spread(looked.keypoints_px) == pytest.approx(true_spread, rel=0.15)
+    assert looked.presence >= localizer.config.presence_threshold
+    plain = localizer.track_many(rf.image, [right])[0]
+    (looked,), (taken,) = localizer.track_looking_wide(rf.image, [right], wide=[True])
+    assert not taken
+    np.testing.assert_array_equal(looked.keypoints_px, plain.keypoints_px)
+    # No wide look asked: the same as track_many.
+    (unasked,), (taken,) = localizer.track_looking_wide(rf.image, [clipped], wide=[False])
+    assert not taken
+    np.testing.assert_array_equal(unasked.keypoints_px, narrow.keypoints_px)
+
+
+@pytest.mark.parametrize("every", [1, 3])
+def test_wide_looks_are_staggered_over_the_tracks_and_repeated_while_taken(every, pipeline):
+    pipeline = TrackingPipeline(preset_camera(), pipeline.model.path, drone=SPEC, wide_look_every=every)
+    due = []
+    for frame in range(1, 7):
+        pipeline.frames = frame
+        due.append([pipeline._wide_look_due(track_id) for track_id in (1, 2, 3)])
+    assert all(sum(column) == 6 // every for column in zip(*due, strict=True))
+    if every > 1:
+        assert all(sum(row) == 1 for row in due)  # three tracks, one wide look a frame
+        pipeline.frames = 6  # track 2's turn is on frames 1, 4, 7, ...
+        assert not pipeline._wide_look_due(2)
+        pipeline._widened = {2}  # its wide look was taken last frame: it looks again
+        assert pipeline._wide_look_due(2)
+    never = TrackingPipeline(preset_camera(), pipeline.model.path, drone=SPEC, wide_look_every=0)
+    assert not any(never._wide_look_due(track_id) for track_id in range(5))
+
+
+@pytest.mark.parametrize(("scale", "ratio"), [(1.0, 2.0), (2.0, 0.9)])
+def test_bad_wide_look_settings_name_them(scale, ratio):
+    with pytest.raises(ValueError, match="wide_look_scale"):
+        LocalizerConfig(wide_look_scale=scale, wide_look_ratio=ratio)
+
+
+def test_two_readings_joined_finish_as_one(pipeline):
+    """``KeypointReading.joined``: two batches read apart give the detections of one batch."""
+    rf = next(iter(build_sequence("seq13", seed=3, frames=1)))
+    model = pipeline.model
+    rois = [(800, 400, 130), (10, 10, 64), (1700, 900, 300)]
+    together = model.finish(model.read(rf.image, rois))
+    apart = model.finish(model.read(rf.image, rois[:1]).joined(model.read(rf.image, rois[1:])))
+    for a, b in zip(together, apart, strict=True):
+        assert a.roi == b.roi
+        np.testing.assert_allclose(a.keypoints_px, b.keypoints_px, atol=1e-3)
+        assert a.presence == pytest.approx(b.presence, abs=1e-5)
+    empty = model.read(rf.image, [])
+    assert model.read(rf.image, rois[:1]).joined(empty).rois == rois[:1]
+    assert empty.joined(model.read(rf.image, rois[:1])).rois == rois[:1]
