@@ -28,8 +28,9 @@ class TrackingConfig(Section):
         1,
         ge=0,
         le=100000,
-        description="frames between a track's wide looks (its drone read again in a crop twice as large, "
-        "so that a crop cut too small from a range read too far cannot clip the drone; 0: never)",
+        description="frames between the frames on which a track whose crop the network is unsure of "
+        "(presence below 0.999) reads its drone again in a crop twice as large, so that a crop cut too "
+        "small from a range read too far cannot clip the drone (1: any frame; 0: never)",
     )
     max_search_candidates: int = Field(
         2, ge=0, le=16, description="crops a search for more drones may check (0: no such search)"

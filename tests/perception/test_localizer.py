@@ -234,9 +234,9 @@ def _clipped_and_right_boxes(rf, shrink: float):
 def test_a_wide_look_mends_a_crop_that_clips_its_drone():
     """Shipped model, seq13 (seed 101, the drone 66 px across its hubs): a crop cut from a box 0.4x
     the drone's (a track read 2.5x too far) clips it, and the network crowds its keypoints (under
-    half the true spread); the wide look reads the drone in a crop twice as large, is taken, and
-    after its recut the spread is the drone's. On the right box the wide look is not taken and the
-    detection is the plain track's."""
+    half the true spread) and is unsure of the crop (presence below 0.999); the wide look reads the
+    drone in a crop twice as large, is taken, and after its recut the spread is the drone's. On the
+    right box the network is sure, no wide look is made, and the detection is the plain track's."""
     pipeline = TrackingPipeline(preset_camera(), drone=SPEC)
     localizer = pipeline.localizer
     rf = next(iter(build_sequence("seq13", seed=101, frames=1)))
@@ -244,6 +244,7 @@ def test_a_wide_look_mends_a_crop_that_clips_its_drone():
     clipped, right = _clipped_and_right_boxes(rf, 0.4)
     narrow = localizer.track_many(rf.image, [clipped])[0]
     assert _spread(narrow.keypoints_px) < 0.5 * true_spread
+    assert narrow.presence < localizer.config.wide_look_presence
     (looked,), (taken,) = localizer.track_looking_wide(rf.image, [clipped], wide=[True])
     assert taken
     assert _spread(looked.keypoints_px) == pytest.approx(true_spread, rel=0.15)
