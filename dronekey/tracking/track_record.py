@@ -22,9 +22,23 @@ from dronekey.tracking.position_filter import ConstantVelocityFilter
 from dronekey.tracking.tracker_config import TrackerConfig
 from dronekey.types import PoseMeasurement, Track, TrackStatus
 
-__all__ = ["NS_PER_S", "HitEvidence", "TrackRecord"]
+__all__ = ["NS_PER_S", "HitEvidence", "TrackRecord", "with_range_doubt"]
 
 NS_PER_S = 1_000_000_000
+
+
+def with_range_doubt(cov: np.ndarray, position_m: np.ndarray, scale: float, floor: float) -> np.ndarray:
+    """``cov`` (3, 3, m^2) with its standard deviation along the line of sight to ``position_m``
+    (camera frame, m) raised to ``max(scale * s, floor * range)``; the other directions unchanged."""
+    cov = np.asarray(cov, dtype=np.float64)
+    position = np.asarray(position_m, dtype=np.float64)
+    range_m = float(np.linalg.norm(position))
+    if not (range_m > 0 and np.all(np.isfinite(cov)) and np.all(np.isfinite(position))):
+        return cov
+    u = position / range_m
+    var = float(u @ cov @ u)
+    wanted = max(scale * math.sqrt(max(var, 0.0)), floor * range_m) ** 2
+    return cov + max(wanted - var, 0.0) * np.outer(u, u)
 
 
 class HitEvidence(NamedTuple):
@@ -166,15 +180,20 @@ class TrackRecord:
             cov = cov + q * (1 - q) * math.pi**2 * np.outer(axis, axis)
         return cov
 
-    def to_track(self, status: TrackStatus | None = None) -> Track:
+    def to_track(self, config: TrackerConfig, status: TrackStatus | None = None) -> Track:
+        """The published track: the filters' state, the position covariance widened along the line
+        of sight (``TrackerConfig.range_std_scale`` / ``range_std_floor``)."""
         R = self.orientation.rotation
+        position = self.position.position_m
         return Track(
             track_id=self.track_id,
             t_ns=self.t_ns,
             status=status or self.status,
-            position_m=self.position.position_m,
+            position_m=position,
             velocity_mps=self.position.velocity_mps,
-            position_cov=self.position.covariance[:3, :3],
+            position_cov=with_range_doubt(
+                self.position.covariance[:3, :3], position, config.range_std_scale, config.range_std_floor
+            ),
             quaternion_wxyz=matrix_to_quat_wxyz(R),
             rotation_std_rad=np.sqrt(np.clip(np.diag(self.rotation_cov_cam()), 0.0, None)),
             keypoints_px=self.keypoints_px,

@@ -190,7 +190,7 @@ class Tracker:
         matched = dict(pairs)  # track id -> its measurement's index
         dropped = self._merge_duplicates(t_ns, matched, measurements, hits, keypoints_px, heading_p)
 
-        reports: list[Track] = [track.to_track(TrackStatus.LOST) for track in dropped]
+        reports: list[Track] = [track.to_track(self.config, TrackStatus.LOST) for track in dropped]
         for track in list(self._tracks.values()):
             if track.track_id not in matched:
                 self._miss(track)
@@ -199,7 +199,7 @@ class Tracker:
                     log.debug("tentative track %d dropped after %d hits", track.track_id, track.hits)
                 else:
                     log.info("track %d lost after %d hits", track.track_id, track.hits)
-                reports.append(track.to_track(TrackStatus.LOST))
+                reports.append(track.to_track(self.config, TrackStatus.LOST))
                 del self._tracks[track.track_id]
         for j in unmatched:
             if len(self._tracks) >= self.config.max_tracks:
@@ -209,7 +209,7 @@ class Tracker:
             track.add_heading_evidence(heading_p[j], 1.0)  # a new track starts from the network's word
             self._tracks[track.track_id] = track
             self._next_id += 1
-        reports.extend(track.to_track() for track in self._tracks.values())
+        reports.extend(track.to_track(self.config) for track in self._tracks.values())
         return sorted(reports, key=lambda tr: tr.track_id)
 
     def predict(self, t_ns: int) -> list[TrackPrediction]:
@@ -251,7 +251,7 @@ class Tracker:
 
     def reset(self) -> list[Track]:
         """Drop every track (e.g. when a source restarts its clock); returns their LOST reports."""
-        reports = [track.to_track(TrackStatus.LOST) for track in self._tracks.values()]
+        reports = [track.to_track(self.config, TrackStatus.LOST) for track in self._tracks.values()]
         self._tracks.clear()
         self._t_ns = None
         return sorted(reports, key=lambda tr: tr.track_id)
