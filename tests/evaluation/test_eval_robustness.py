@@ -20,6 +20,7 @@ from dronekey.evaluation.robustness.scoring import (
     match_gate_m,
     miss_reason,
     on_line_of_sight,
+    range_z,
 )
 from dronekey.evaluation.robustness.seed_sets import check_seeds
 from dronekey.evaluation.robustness.summary import summarise
@@ -67,6 +68,9 @@ METRICS = {
     "front_back_right_pct",
     "axis_frames",
     "axis_exchanged_pct",
+    "range_doubt_frames",
+    "range_within_1sd_pct",
+    "range_within_2sd_pct",
     "front_away_pct",
     "confident_wrong_heading_front_away_pct",
     "confident_wrong_heading_front_toward_pct",
@@ -189,6 +193,7 @@ def _scores(
         missed_unseen=np.array([m == "unseen" for m in miss], bool),
         front_back_right=np.asarray(fb if fb is not None else [np.nan] * n, float),
         axis_exchanged=np.full(n, np.nan),
+        range_z=np.full(n, np.nan),
     )
 
 
@@ -472,3 +477,21 @@ def test_cli_dither_is_recorded_and_named_in_the_table(tmp_path, capsys):
     assert "frames dithered (seed 9)" in capsys.readouterr().out.splitlines()[0]
     assert main(["robustness", "--out", str(tmp_path), "--dither", "-2"]) == 2
     assert "--dither must be >= 0, got -2" in capsys.readouterr().err
+
+
+def test_range_z_is_the_range_error_over_the_stated_doubt_along_the_line_of_sight():
+    track = make_track(position_m=(0.0, 3.0, 4.0), position_cov=np.diag([9.0, 0.16, 0.09]))  # range 5 m
+    u = np.array([0.0, 0.6, 0.8])
+    sd = float(np.sqrt(u @ np.diag([9.0, 0.16, 0.09]) @ u))  # the 9 m^2 across the ray does not count
+    assert range_z(track, np.array([0.0, 0.0, 4.5])) == pytest.approx(0.5 / sd)
+    assert range_z(track, np.array([0.0, 6.0, 8.0])) == pytest.approx(-5.0 / sd)
+    assert np.isnan(range_z(make_track(position_m=(0.0, 3.0, 4.0), position_cov=np.zeros((3, 3))), [0, 0, 5]))
+
+
+def test_summary_counts_frames_whose_range_lies_within_one_and_two_stated_deviations():
+    s = _scores([False] * 5, [True] * 5, [False] * 5, [False] * 5, [[0, 0, 0]] * 5)
+    s.range_z = np.array([0.2, -0.9, 1.5, -3.0, np.nan])  # the last: no track on the drone
+    out = summarise([s])
+    assert out["range_doubt_frames"] == 4
+    assert out["range_within_1sd_pct"] == pytest.approx(50.0)
+    assert out["range_within_2sd_pct"] == pytest.approx(75.0)

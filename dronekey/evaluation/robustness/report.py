@@ -54,7 +54,8 @@ _COLUMNS = (
 )
 
 # The second table: where the frames without the drone's track went, the front/back classifier per
-# detection, and the detections whose order exchanges the body's axes (``summary``'s notes).
+# detection, the detections whose order exchanges the body's axes, and how often the true range lies
+# within one and two published standard deviations (``summary``'s notes).
 _MISS_COLUMNS = (
     ("detected", "%", "detected_pct", "{:.1f}"),
     ("range", "%", "missed_wrong_range_pct", "{:.1f}"),
@@ -63,6 +64,8 @@ _MISS_COLUMNS = (
     ("f/b dets", "", "front_back_frames", "{:d}"),
     ("f/b ok", "%", "front_back_right_pct", "{:.1f}"),
     ("axis x", "%", "axis_exchanged_pct", "{:.1f}"),
+    ("rng<1sd", "%", "range_within_1sd_pct", "{:.1f}"),
+    ("rng<2sd", "%", "range_within_2sd_pct", "{:.1f}"),
 )
 
 

@@ -22,7 +22,10 @@ A fresh ``TrackingPipeline`` (unchanged) runs over every frame; per scored frame
   that was not confirmed (``missed_unconfirmed``), nothing on it at all (``missed_unseen``);
 - whether the front/back classifier favoured the right order for the best detection, where that
   detection is the drone's and its keypoints are near one order and clearly not the other
-  (``front_back_right``): the classifier's word per frame, apart from what the tracker made of it.
+  (``front_back_right``): the classifier's word per frame, apart from what the tracker made of it;
+- how honest the published range doubt is (``range_z``): for the published track nearest the
+  truth among those on the drone (its own, or one on its line of sight at a wrong range), the
+  range error over the standard deviation its ``position_cov`` states along its line of sight.
 
 Every frame of a drone-free sequence is scored; frames of a drone sequence without an annotation
 (the drone out of view) are not.
@@ -60,6 +63,7 @@ __all__ = [
     "front_back_verdict",
     "match_gate_m",
     "miss_reason",
+    "range_z",
     "score_sequence",
 ]
 
@@ -113,6 +117,21 @@ def miss_reason(tracks: Sequence[Track], t_true: np.ndarray, drone_radius_m: flo
     if any(tr.status in PUBLISHED_STATUSES for tr in on_sight):
         return "wrong_range"
     return "unconfirmed" if any(tr.status is TrackStatus.TENTATIVE for tr in on_sight) else "unseen"
+
+
+def range_z(track: Track, t_true: np.ndarray) -> float:
+    """A track's range error (its distance from the camera minus the true one) over the standard
+    deviation its ``position_cov`` gives along its own line of sight; NaN where it gives none."""
+    position = np.asarray(track.position_m, dtype=np.float64)
+    cov = np.asarray(track.position_cov, dtype=np.float64)
+    range_m = float(np.linalg.norm(position))
+    if not range_m > 0:
+        return float("nan")
+    u = position / range_m
+    var = float(u @ cov @ u)
+    if not var > 0:
+        return float("nan")
+    return (range_m - float(np.linalg.norm(t_true))) / float(np.sqrt(var))
 
 
 def front_back_verdict(detection: KeypointDetection | None, kp_true: np.ndarray) -> float:
@@ -199,6 +218,8 @@ class SequenceScores:
     front_back_right : (N,) 1.0 where the front/back classifier favoured the true order for the
         drone's detection, 0.0 where it favoured the twin, NaN where it was not asked, answered
         0.5, or the detection is not the drone's or its order is undecided.
+    range_z : (N,) ``range_z`` of the published track nearest the truth among those on the drone
+        (its own, or on its line of sight at a wrong range); NaN where there is none.
     fps : frames per second of the pipeline alone (all frames of the sequence).
     """
 
@@ -224,6 +245,7 @@ class SequenceScores:
     missed_unseen: np.ndarray
     front_back_right: np.ndarray
     axis_exchanged: np.ndarray
+    range_z: np.ndarray
     fps: float = float("nan")
 
     @property
@@ -302,6 +324,7 @@ def score_sequence(
             "miss",
             "front_back",
             "axis",
+            "range_z",
         )
     }
     false_ids: set[int] = set()
@@ -335,6 +358,15 @@ def score_sequence(
         ]
         off_sight_ids.update(off_sight)
         rows["off_sight"].append(bool(off_sight))
+        on_drone = [
+            tr
+            for tr, ok in zip(published, is_drone, strict=True)
+            if ok or on_line_of_sight(tr.position_m, ann.translation, drone_radius_m)
+        ]
+        nearest = min(
+            on_drone, key=lambda tr: float(np.linalg.norm(tr.position_m - ann.translation)), default=None
+        )
+        rows["range_z"].append(range_z(nearest, ann.translation) if nearest is not None else np.nan)
         mine = [tr for tr, ok in zip(published, is_drone, strict=True) if ok]
         best = min(mine, key=published_track_rank) if mine else None
         rows["miss"].append(
@@ -386,5 +418,6 @@ def score_sequence(
         missed_unseen=_stack([m == "unseen" for m in rows["miss"]], (), bool),
         front_back_right=_stack(rows["front_back"], ()),
         axis_exchanged=_stack(rows["axis"], ()),
+        range_z=_stack(rows["range_z"], ()),
         fps=n / proc_s if proc_s > 0 else float("nan"),
     )

@@ -34,7 +34,10 @@ Per sequence and per group (a frame-weighted average over the scored frames, ``s
 - axis exchanged per detection: of the frames whose best detection is the drone's with a clearly
   decided kind of order (``scoring.axis_exchanged``), the percent whose order exchanges the body's
   front/back and left/right axes (a quarter turn): such a detection reads the drone at a wrong
-  range, whatever the front/back classifier says.
+  range, whatever the front/back classifier says;
+- range doubt: of the frames with a published track on the drone (``scoring.range_z``), the
+  percent whose true range lies within one and within two of the standard deviations the track's
+  ``position_cov`` states along its line of sight (an honest Gaussian doubt: 68 and 95).
 """
 
 from __future__ import annotations
@@ -68,7 +71,8 @@ def summarise(scores: Sequence[SequenceScores]) -> dict:
     ``wrong_heading_pct`` (any confidence), ``confident_right_heading_frames``,
     ``confident_right_heading_pct``, ``missed_wrong_range_pct``, ``missed_unconfirmed_pct``,
     ``missed_unseen_pct``, ``front_back_frames``, ``front_back_right_pct``, ``axis_frames``,
-    ``axis_exchanged_pct``, ``front_away_pct``,
+    ``axis_exchanged_pct``, ``range_doubt_frames``, ``range_within_1sd_pct``,
+    ``range_within_2sd_pct``, ``front_away_pct``,
     ``confident_wrong_heading_front_away_pct`` and ``confident_wrong_heading_front_toward_pct``;
     figures that need a drone sequence are None without one, and a figure with no frame to average
     is None.
@@ -111,6 +115,9 @@ def summarise(scores: Sequence[SequenceScores]) -> dict:
         "front_back_right_pct": None,
         "axis_frames": None,
         "axis_exchanged_pct": None,
+        "range_doubt_frames": None,
+        "range_within_1sd_pct": None,
+        "range_within_2sd_pct": None,
         "front_away_pct": None,
         "confident_wrong_heading_front_away_pct": None,
         "confident_wrong_heading_front_toward_pct": None,
@@ -134,6 +141,8 @@ def summarise(scores: Sequence[SequenceScores]) -> dict:
     asked = np.isfinite(front_back)
     exchanged = cat("axis_exchanged")
     decided = np.isfinite(exchanged)
+    z = np.abs(cat("range_z"))
+    z = z[np.isfinite(z)]
     out.update(
         detected_frames=int(hit.sum()),
         detected_pct=rounded(_pct(int(hit.sum()), n_ann), 2),
@@ -155,6 +164,9 @@ def summarise(scores: Sequence[SequenceScores]) -> dict:
         front_back_right_pct=rounded(_pct(int(front_back[asked].sum()), int(asked.sum())), 2),
         axis_frames=int(decided.sum()),
         axis_exchanged_pct=rounded(_pct(int(exchanged[decided].sum()), int(decided.sum())), 2),
+        range_doubt_frames=int(len(z)),
+        range_within_1sd_pct=rounded(_pct(int((z <= 1.0).sum()), len(z)), 2),
+        range_within_2sd_pct=rounded(_pct(int((z <= 2.0).sum()), len(z)), 2),
         front_away_pct=rounded(_pct(int(away.sum()), n_ann), 2),
         confident_wrong_heading_front_away_pct=rounded(
             _pct(int(confident_wrong_frames[away].sum()), int(away.sum())), 2
