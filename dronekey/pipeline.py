@@ -44,6 +44,7 @@ from dronekey.perception.localizer import (
     box_from_keypoints,
     box_from_pose,
     box_overlap,
+    keypoint_spread,
 )
 from dronekey.perception.plausibility import PlausibilityConfig, check_detection, check_pose
 from dronekey.perception.pose import PoseEstimator
@@ -186,9 +187,7 @@ class PoseTracker:
         result = self.estimator.estimate(detection.keypoints_px, prior=prior)
         if isinstance(result, PoseRejection):
             return None, result.reason
-        kp = detection.keypoints_px
-        spread = max(np.linalg.norm(kp[i] - kp[j]) for i in range(4) for j in range(i + 1, 4))
-        limit = max(2.0, self.max_reprojection_frac * spread)
+        limit = max(2.0, self.max_reprojection_frac * keypoint_spread(detection.keypoints_px))
         if result.reprojection_px > limit:
             return None, f"reprojection {result.reprojection_px:.1f} px > {limit:.1f} px"
         reason = check_pose(result, detection, self.camera, self.spec, self.plausibility)

@@ -40,6 +40,7 @@ __all__ = [
     "box_from_keypoints",
     "box_from_pose",
     "box_overlap",
+    "keypoint_spread",
     "propose_rois",
     "saliency_pass",
     "select_rois",
@@ -125,8 +126,8 @@ class LocalizerConfig:
             raise ValueError(f"wide_look_presence must be in (0, 1], got {self.wide_look_presence}")
 
 
-def _spread(keypoints_px: np.ndarray) -> float:
-    """Largest distance between two keypoints (px)."""
+def keypoint_spread(keypoints_px: np.ndarray) -> float:
+    """Largest distance between two keypoints (px): the drone's apparent size."""
     kp = np.asarray(keypoints_px, dtype=np.float64)
     return float(max(np.linalg.norm(kp[i] - kp[j]) for i in range(len(kp)) for j in range(i + 1, len(kp))))
 
@@ -135,7 +136,7 @@ def box_from_keypoints(keypoints_px: np.ndarray, spec: DroneSpec) -> Box:
     """Approximate box of the whole drone from its four hubs: the hubs' box grown by a propeller
     radius scaled like the hubs' apparent spread."""
     kp = np.asarray(keypoints_px, dtype=np.float64)
-    spread = _spread(kp)
+    spread = keypoint_spread(kp)
     margin = 0.5 * spec.prop_diameter_m / spec.diagonal_m * spread + 1.0
     lo, hi = kp.min(axis=0) - margin, kp.max(axis=0) + margin
     return float(lo[0]), float(lo[1]), float(hi[0] - lo[0]), float(hi[1] - lo[1])
@@ -280,7 +281,7 @@ class Localizer:
             return False
         if narrow.presence < cfg.presence_threshold or not np.all(np.isfinite(narrow.keypoints_px)):
             return True
-        return _spread(wide.keypoints_px) > cfg.wide_look_ratio * _spread(narrow.keypoints_px)
+        return keypoint_spread(wide.keypoints_px) > cfg.wide_look_ratio * keypoint_spread(narrow.keypoints_px)
 
     def refine(self, frame: np.ndarray | FrameImage, detection: KeypointDetection) -> KeypointDetection:
         """Re-crop on the box implied by a detection's keypoints and run the network again."""

@@ -22,9 +22,20 @@ from dronekey.tracking.position_filter import ConstantVelocityFilter
 from dronekey.tracking.tracker_config import TrackerConfig
 from dronekey.types import PoseMeasurement, Track, TrackStatus
 
-__all__ = ["NS_PER_S", "HitEvidence", "TrackRecord", "with_range_doubt"]
+__all__ = ["NS_PER_S", "HitEvidence", "TrackRecord", "line_of_sight_variance", "with_range_doubt"]
 
 NS_PER_S = 1_000_000_000
+
+
+def line_of_sight_variance(cov: np.ndarray, position_m: np.ndarray) -> float:
+    """Variance (m^2) of a camera-frame position's covariance ``cov`` (3, 3) along the camera's line
+    of sight to it, ``position_m`` (m): the range doubt. NaN at the camera's centre."""
+    position = np.asarray(position_m, dtype=np.float64)
+    range_m = float(np.linalg.norm(position))
+    if not range_m > 0:
+        return float("nan")
+    u = position / range_m
+    return float(u @ np.asarray(cov, dtype=np.float64) @ u)
 
 
 def with_range_doubt(cov: np.ndarray, position_m: np.ndarray, scale: float, floor: float) -> np.ndarray:
@@ -36,7 +47,7 @@ def with_range_doubt(cov: np.ndarray, position_m: np.ndarray, scale: float, floo
     if not (range_m > 0 and np.all(np.isfinite(cov)) and np.all(np.isfinite(position))):
         return cov
     u = position / range_m
-    var = float(u @ cov @ u)
+    var = line_of_sight_variance(cov, position)
     wanted = max(scale * math.sqrt(max(var, 0.0)), floor * range_m) ** 2
     return cov + max(wanted - var, 0.0) * np.outer(u, u)
 

@@ -7,7 +7,7 @@ from daemon_media import write_untrained_model
 
 from dronekey.geometry.camera import CalibrationError
 from dronekey.geometry.drone_spec import load_spec
-from dronekey.perception.localizer import LocalizerConfig, _spread, box_from_keypoints, box_from_pose
+from dronekey.perception.localizer import LocalizerConfig, box_from_keypoints, box_from_pose, keypoint_spread
 from dronekey.pipeline import TrackingPipeline, _Background
 from dronekey.sim_replay.backgrounds import landscape, sky, urban
 from dronekey.sim_replay.drone_look import DroneStyle
@@ -240,14 +240,14 @@ def test_a_wide_look_mends_a_crop_that_clips_its_drone():
     pipeline = TrackingPipeline(preset_camera(), drone=SPEC)
     localizer = pipeline.localizer
     rf = next(iter(build_sequence("seq13", seed=101, frames=1)))
-    true_spread = _spread(rf.record.drone.keypoints_px)
+    true_spread = keypoint_spread(rf.record.drone.keypoints_px)
     clipped, right = _clipped_and_right_boxes(rf, 0.4)
     narrow = localizer.track_many(rf.image, [clipped])[0]
-    assert _spread(narrow.keypoints_px) < 0.5 * true_spread
+    assert keypoint_spread(narrow.keypoints_px) < 0.5 * true_spread
     assert narrow.presence < localizer.config.wide_look_presence
     (looked,), (taken,) = localizer.track_looking_wide(rf.image, [clipped], wide=[True])
     assert taken
-    assert _spread(looked.keypoints_px) == pytest.approx(true_spread, rel=0.15)
+    assert keypoint_spread(looked.keypoints_px) == pytest.approx(true_spread, rel=0.15)
     assert looked.presence >= localizer.config.presence_threshold
     plain = localizer.track_many(rf.image, [right])[0]
     (looked,), (taken,) = localizer.track_looking_wide(rf.image, [right], wide=[True])

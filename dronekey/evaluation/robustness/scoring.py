@@ -47,6 +47,7 @@ from dronekey.perception.keypoint_order import HEADING_TWIN, SYMMETRIES
 from dronekey.pipeline import TrackingPipeline
 from dronekey.sim_replay.annotations import SequenceAnnotations
 from dronekey.sim_replay.io.frames import iter_frames
+from dronekey.tracking.track_record import line_of_sight_variance
 from dronekey.types import PUBLISHED_STATUSES, KeypointDetection, Track, TrackStatus
 
 __all__ = [
@@ -122,16 +123,10 @@ def miss_reason(tracks: Sequence[Track], t_true: np.ndarray, drone_radius_m: flo
 def range_z(track: Track, t_true: np.ndarray) -> float:
     """A track's range error (its distance from the camera minus the true one) over the standard
     deviation its ``position_cov`` gives along its own line of sight; NaN where it gives none."""
-    position = np.asarray(track.position_m, dtype=np.float64)
-    cov = np.asarray(track.position_cov, dtype=np.float64)
-    range_m = float(np.linalg.norm(position))
-    if not range_m > 0:
+    var = line_of_sight_variance(track.position_cov, track.position_m)
+    if not var > 0:  # NaN included
         return float("nan")
-    u = position / range_m
-    var = float(u @ cov @ u)
-    if not var > 0:
-        return float("nan")
-    return (range_m - float(np.linalg.norm(t_true))) / float(np.sqrt(var))
+    return (float(np.linalg.norm(track.position_m)) - float(np.linalg.norm(t_true))) / float(np.sqrt(var))
 
 
 def front_back_verdict(detection: KeypointDetection | None, kp_true: np.ndarray) -> float:
@@ -351,18 +346,15 @@ def score_sequence(
         gate = match_gate_m(ann.translation)
         is_drone = [float(np.linalg.norm(tr.position_m - ann.translation)) <= gate for tr in published]
         false_ids.update(tr.track_id for tr, ok in zip(published, is_drone, strict=True) if not ok)
+        on_sight = [on_line_of_sight(tr.position_m, ann.translation, drone_radius_m) for tr in published]
         off_sight = [
             tr.track_id
-            for tr, ok in zip(published, is_drone, strict=True)
-            if not ok and not on_line_of_sight(tr.position_m, ann.translation, drone_radius_m)
+            for tr, ok, seen in zip(published, is_drone, on_sight, strict=True)
+            if not ok and not seen
         ]
         off_sight_ids.update(off_sight)
         rows["off_sight"].append(bool(off_sight))
-        on_drone = [
-            tr
-            for tr, ok in zip(published, is_drone, strict=True)
-            if ok or on_line_of_sight(tr.position_m, ann.translation, drone_radius_m)
-        ]
+        on_drone = [tr for tr, ok, seen in zip(published, is_drone, on_sight, strict=True) if ok or seen]
         nearest = min(
             on_drone, key=lambda tr: float(np.linalg.norm(tr.position_m - ann.translation)), default=None
         )
