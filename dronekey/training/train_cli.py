@@ -82,6 +82,14 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--patience", type=int)
     g.add_argument("--presence-steps", type=int, help="head-only presence steps after the epochs (0: none)")
     g.add_argument("--heading-weight", type=float, help="weight of the front/back head's nose loss")
+    g.add_argument(
+        "--crop-jitter-scale",
+        type=float,
+        metavar="J",
+        help="crop side drawn log-uniform in [1 - J, 1 + J] times the policy's framing (CropPolicy."
+        "jitter_scale): wider teaches the network to read a drone's size inside a crop cut too small or "
+        "too large instead of from the crop itself",
+    )
     p.add_argument(
         "--init-from",
         default=None,
@@ -101,6 +109,8 @@ def _check(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
             parser.error(f"--{name.replace('_', '-')} must be positive, got {v}")
     if args.presence_steps is not None and args.presence_steps < 0:
         parser.error(f"--presence-steps must be >= 0, got {args.presence_steps}")
+    if args.crop_jitter_scale is not None and not 0.0 <= args.crop_jitter_scale < 1.0:
+        parser.error(f"--crop-jitter-scale must be in [0, 1), got {args.crop_jitter_scale}")
     if args.workers < 0:
         parser.error(f"--workers must be >= 0, got {args.workers}")
     if args.backgrounds is not None and not Path(args.backgrounds).is_dir():
@@ -115,11 +125,15 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(message)s", stream=sys.stderr)
     _check(parser, args)
+    recipe = presets()[args.preset]
+    overrides = {field: getattr(args, dest) for dest, field in OVERRIDES.items()}
+    if args.crop_jitter_scale is not None:
+        overrides["crop"] = {**recipe.crop, "jitter_scale": args.crop_jitter_scale}
     trainer = Trainer(
-        presets()[args.preset],
+        recipe,
         args.out,
         recipe_name=args.preset,
-        overrides={field: getattr(args, dest) for dest, field in OVERRIDES.items()},
+        overrides=overrides,
         resume=args.resume,
         init_from=args.init_from,
         coco=args.coco,

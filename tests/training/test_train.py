@@ -58,7 +58,13 @@ def test_presence_stage_is_kept_only_when_it_helps(tmp_path, caplog):
 
 @pytest.mark.parametrize(
     "args",
-    [["--epochs", "0"], ["--batch", "-1"], ["--backgrounds", "/nonexistent/dir"], ["--presence-steps", "-1"]],
+    [
+        ["--epochs", "0"],
+        ["--batch", "-1"],
+        ["--backgrounds", "/nonexistent/dir"],
+        ["--presence-steps", "-1"],
+        ["--crop-jitter-scale", "1.0"],
+    ],
 )
 def test_bad_arguments_are_one_line_errors(args, tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
@@ -66,6 +72,15 @@ def test_bad_arguments_are_one_line_errors(args, tmp_path, capsys):
     assert exc.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err[-1].startswith("dronekey-train: error:")
+
+
+def test_crop_jitter_scale_reaches_the_recipe_and_the_checkpoint(tmp_path):
+    out = tmp_path / "run"
+    args = ["--preset", "tiny", "--workers", "0", "--threads", "1", "--epochs", "1", "--presence-steps", "0"]
+    assert main([*args, "--out", str(out), "--crop-jitter-scale", "0.45"]) == 0
+    _, meta = load_checkpoint(out / "last.pt")
+    assert meta["crop_policy"]["jitter_scale"] == 0.45
+    assert meta["crop_policy"]["scale"] == 1.3  # the rest of the policy is the preset's
 
 
 def test_presence_head_refit_changes_only_the_head_and_switches_its_input():
