@@ -14,7 +14,7 @@ import logging
 import sys
 import time
 from collections.abc import Iterator, Mapping
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -176,9 +176,11 @@ class Trainer:
         torch.manual_seed(self.seed)
         if self.threads:
             torch.set_num_threads(self.threads)
-        # The crop policy of the recipe given, also on resume (a run's saved one is not read back).
-        crop = CropPolicy(**self.recipe.crop)
         recipe, net, state = self._network()
+        # The run's own crop policy (a resumed run keeps the framing it was started with, e.g. a
+        # wider --crop-jitter-scale) over the given recipe's, fields CropPolicy no longer has dropped.
+        known = {f.name for f in fields(CropPolicy)}
+        crop = CropPolicy(**{**self.recipe.crop, **{k: v for k, v in recipe.crop.items() if k in known}})
         net = net.to(memory_format=torch.channels_last)  # faster convolutions in oneDNN
         use_bf16 = self.precision == "bf16" or (self.precision == "auto" and cpu_has_bf16())
         log.info("mixed precision: %s", "bfloat16 autocast (fp32 weights)" if use_bf16 else "off (fp32)")

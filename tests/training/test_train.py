@@ -4,6 +4,7 @@ import json
 
 import pytest
 
+from dronekey.training import trainer as trainer_module
 from dronekey.training.checkpoints import load_checkpoint
 from dronekey.training.train_cli import main
 
@@ -74,13 +75,22 @@ def test_bad_arguments_are_one_line_errors(args, tmp_path, capsys):
     assert err[-1].startswith("dronekey-train: error:")
 
 
-def test_crop_jitter_scale_reaches_the_recipe_and_the_checkpoint(tmp_path):
+def test_crop_jitter_scale_reaches_the_recipe_and_the_checkpoint_and_a_resume(tmp_path, monkeypatch):
     out = tmp_path / "run"
     args = ["--preset", "tiny", "--workers", "0", "--threads", "1", "--epochs", "1", "--presence-steps", "0"]
     assert main([*args, "--out", str(out), "--crop-jitter-scale", "0.45"]) == 0
     _, meta = load_checkpoint(out / "last.pt")
     assert meta["crop_policy"]["jitter_scale"] == 0.45
     assert meta["crop_policy"]["scale"] == 1.3  # the rest of the policy is the preset's
+
+    # Resumed without the option, the run keeps cutting its crops as it started.
+    used = []
+    real_sources = trainer_module.crop_sources
+    monkeypatch.setattr(
+        trainer_module, "crop_sources", lambda crop, *a: used.append(crop) or real_sources(crop, *a)
+    )
+    assert main([*args[:-4], "--out", str(out), "--resume", "--epochs", "2", "--presence-steps", "0"]) == 0
+    assert [c.jitter_scale for c in used] == [0.45]
 
 
 def test_presence_head_refit_changes_only_the_head_and_switches_its_input():
