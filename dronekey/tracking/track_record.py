@@ -27,14 +27,20 @@ __all__ = ["NS_PER_S", "HitEvidence", "TrackRecord", "line_of_sight_variance", "
 NS_PER_S = 1_000_000_000
 
 
+def _line_of_sight(position_m: np.ndarray) -> tuple[float, np.ndarray]:
+    """(range m, unit vector) from the camera to a camera-frame position; range NaN or 0 at the
+    camera's centre or for a position that is not finite."""
+    position = np.asarray(position_m, dtype=np.float64)
+    range_m = float(np.linalg.norm(position))
+    return range_m, position / range_m if range_m > 0 else position
+
+
 def line_of_sight_variance(cov: np.ndarray, position_m: np.ndarray) -> float:
     """Variance (m^2) of a camera-frame position's covariance ``cov`` (3, 3) along the camera's line
     of sight to it, ``position_m`` (m): the range doubt. NaN at the camera's centre."""
-    position = np.asarray(position_m, dtype=np.float64)
-    range_m = float(np.linalg.norm(position))
+    range_m, u = _line_of_sight(position_m)
     if not range_m > 0:
         return float("nan")
-    u = position / range_m
     return float(u @ np.asarray(cov, dtype=np.float64) @ u)
 
 
@@ -42,12 +48,10 @@ def with_range_doubt(cov: np.ndarray, position_m: np.ndarray, scale: float, floo
     """``cov`` (3, 3, m^2) with its standard deviation along the line of sight to ``position_m``
     (camera frame, m) raised to ``max(scale * s, floor * range)``; the other directions unchanged."""
     cov = np.asarray(cov, dtype=np.float64)
-    position = np.asarray(position_m, dtype=np.float64)
-    range_m = float(np.linalg.norm(position))
-    if not (range_m > 0 and np.all(np.isfinite(cov)) and np.all(np.isfinite(position))):
+    range_m, u = _line_of_sight(position_m)
+    if not (range_m > 0 and math.isfinite(range_m) and np.all(np.isfinite(cov))):
         return cov
-    u = position / range_m
-    var = line_of_sight_variance(cov, position)
+    var = float(u @ cov @ u)
     wanted = max(scale * math.sqrt(max(var, 0.0)), floor * range_m) ** 2
     return cov + max(wanted - var, 0.0) * np.outer(u, u)
 
