@@ -34,11 +34,11 @@ class ModelConfig(Section):
         description="decide each crop's front and back with the front/back classifier "
         "(dronekey.perception.heading_model); false: the keypoint network's own head (a coin flip)",
     )
-    front_back_net: Literal["small", "deep"] = Field(
-        "small",
-        description="which shipped front/back classifier: small (0.5 ms a crop, gated: it answers 0.5 on a "
+    front_back_net: Literal["gated", "deep", "small"] = Field(
+        "gated",
+        description="which shipped front/back classifier: gated (0.5 ms a crop; it answers 0.5 on a "
         "body that shows no front) or deep (1.2 ms a crop, no gate, a pipeline 13-15 % slower; "
-        "docs/model.md); unused with front_back_path",
+        "docs/model.md); small is the gated one's former name; unused with front_back_path",
     )
     front_back_path: FilePath | None = Field(
         None, description="ONNX front/back classifier; null: the shipped one that front_back_net names"

@@ -376,7 +376,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument(
         "--front-back",
         default=None,
-        help="ONNX front/back classifier, or the name of a shipped one: small (the default) or deep",
+        help="ONNX front/back classifier, or the name of a shipped one: gated (the default) or deep",
     )
     r.add_argument("--verifier", default=None, help="ONNX drone verifier (default: the shipped one, if any)")
     r.add_argument("--no-verifier", action="store_true", help="run without a drone verifier")

@@ -38,6 +38,7 @@ from dronekey.perception.patch_classifier import (
 )
 
 __all__ = [
+    "HEADING_MODEL_ALIASES",
     "HUB_RADIUS",
     "INPUT_NAME",
     "OUTPUT_NAME",
@@ -52,26 +53,32 @@ __all__ = [
     "patches_to_tensor",
 ]
 
-# The shipped front/back classifiers by name: "small", the default (four convs and the gate that
-# answers 0.5 on a body showing no front, 0.5 ms a crop on one core of the 2-core box), and "deep"
-# (six convs, no gate, 1.2 ms a crop, right on 81 % of held-out crops against 79 %; a pipeline
-# 13-15 % slower; docs/model.md).
-SHIPPED_HEADING_MODELS = {"small": "dronekey_heading.onnx", "deep": "dronekey_heading_deep.onnx"}
+# The shipped front/back classifiers by name, the training recipe that made each
+# (``dronekey-train-heading --net``): "gated", the default (four convs and the gate that answers 0.5
+# on a body showing no front, 0.5 ms a crop on one core of the 2-core box), and "deep" (six convs, no
+# gate, 1.2 ms a crop, right on 81 % of held-out crops against 79 %; a pipeline 13-15 % slower;
+# docs/model.md).
+SHIPPED_HEADING_MODELS = {"gated": "dronekey_heading.onnx", "deep": "dronekey_heading_deep.onnx"}
+# Former names still accepted: "small" named the gated classifier until 2026-12-05, although the
+# training recipe of that name is the net without the gate.
+HEADING_MODEL_ALIASES = {"small": "gated"}
 OUTPUT_NAME = "logit"
 
 
-def default_heading_model_path(net: str = "small") -> Path:
-    """The shipped front/back classifier ``net`` (a key of ``SHIPPED_HEADING_MODELS``), inside the
-    installed package."""
+def default_heading_model_path(net: str = "gated") -> Path:
+    """The shipped front/back classifier ``net`` (a key of ``SHIPPED_HEADING_MODELS`` or a former name
+    in ``HEADING_MODEL_ALIASES``), inside the installed package."""
+    net = HEADING_MODEL_ALIASES.get(net, net)
     if net not in SHIPPED_HEADING_MODELS:
         raise ValueError(f"net must be one of {', '.join(SHIPPED_HEADING_MODELS)}, got {net!r}")
     return Path(str(resources.files("dronekey.models").joinpath(SHIPPED_HEADING_MODELS[net])))
 
 
 def heading_model_path(choice: str | Path) -> Path:
-    """The file a front/back classifier choice names: a key of ``SHIPPED_HEADING_MODELS``
-    (``"deep"``) the shipped one, anything else a path (``./deep`` for a file so named)."""
-    if isinstance(choice, str) and choice in SHIPPED_HEADING_MODELS:
+    """The file a front/back classifier choice names: a key of ``SHIPPED_HEADING_MODELS`` (``"deep"``)
+    or of ``HEADING_MODEL_ALIASES`` the shipped one, anything else a path (``./deep`` for a file so
+    named)."""
+    if isinstance(choice, str) and (choice in SHIPPED_HEADING_MODELS or choice in HEADING_MODEL_ALIASES):
         return default_heading_model_path(choice)
     return Path(choice)
 

@@ -38,7 +38,7 @@ __all__ = [
 ]
 
 # The front/back classifiers' recipes. "gated" gives the shipped default classifier (the runtime's
-# "small" in ``heading_model.SHIPPED_HEADING_MODELS``, dronekey_heading.onnx; twenty-first session):
+# "gated" in ``heading_model.SHIPPED_HEADING_MODELS``, dronekey_heading.onnx; twenty-first session):
 # the four-conv net with a second, symmetric logit that says whether the body shows a front
 # (177,682 parameters, 8 epochs over two seeds' patches). "small" is the same net without the gate,
 # the default until then (177,617 parameters). "deep" has two convs at 16 and at 8 px, 128 wide at

@@ -389,12 +389,17 @@ def test_the_tracking_section_reaches_the_pipeline(write_config):
 def test_the_model_section_chooses_the_shipped_front_back_classifier(write_config):
     from dronekey.daemon.app import default_pipeline_factory
     from dronekey.daemon.config.model import ModelConfig
-    from dronekey.perception.heading_model import SHIPPED_HEADING_MODELS
+    from dronekey.perception.heading_model import HEADING_MODEL_ALIASES, SHIPPED_HEADING_MODELS
 
     allowed = typing.get_args(ModelConfig.model_fields["front_back_net"].annotation)
-    assert set(allowed) == set(SHIPPED_HEADING_MODELS)  # every shipped classifier, nothing else
+    assert set(allowed) == set(SHIPPED_HEADING_MODELS) | set(HEADING_MODEL_ALIASES)  # nothing else
+    assert ModelConfig().front_back_net == "gated"
     camera = CameraModel.from_fov(1920, 1080, 70)
-    for net, name in (("small", "dronekey_heading.onnx"), ("deep", "dronekey_heading_deep.onnx")):
+    for net, name in (
+        ("gated", "dronekey_heading.onnx"),
+        ("small", "dronekey_heading.onnx"),  # its former name, in configs written before
+        ("deep", "dronekey_heading_deep.onnx"),
+    ):
         cfg = write_config(f"source: {{uri: sim://seq13}}\nmodel: {{front_back_net: {net}}}\n")
         config = load_config(cfg, {})
         assert default_pipeline_factory(camera, config).model.heading_model.path.name == name

@@ -38,7 +38,7 @@ def test_canonical_patch_turns_the_front_up():
     assert np.argwhere(twin[..., 0] > 200)[:, 0].min() > PATCH_SIZE / 2 + 5
 
 
-@pytest.mark.parametrize("net", ["small", "deep"])
+@pytest.mark.parametrize("net", ["gated", "deep"])
 def test_shipped_model_answers_the_turned_patch_with_the_complementary_probability(net):
     model = load_heading_model(net)
     assert model.path == default_heading_model_path(net)
@@ -70,8 +70,9 @@ def test_errors_name_what_is_wrong(tmp_path):
         load_heading_model(3)
     assert load_heading_model(False) is None
     assert default_heading_model_path().is_file()
-    with pytest.raises(ValueError, match="net must be one of small, deep, got 'huge'"):
+    with pytest.raises(ValueError, match="net must be one of gated, deep, got 'huge'"):
         default_heading_model_path("huge")
+    assert default_heading_model_path("small") == default_heading_model_path("gated")  # former name
 
 
 def test_keypoint_model_takes_the_classifiers_order():
