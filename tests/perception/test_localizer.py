@@ -1,5 +1,7 @@
 """Localiser and pipeline plumbing: candidate search on real rendered frames, boxes, empty frames."""
 
+from dataclasses import replace
+
 import cv2
 import numpy as np
 import pytest
@@ -8,6 +10,7 @@ from daemon_media import write_untrained_model
 from dronekey.geometry.camera import CalibrationError
 from dronekey.geometry.drone_spec import load_spec
 from dronekey.perception.localizer import LocalizerConfig, box_from_keypoints, box_from_pose, keypoint_spread
+from dronekey.perception.plausibility import check_detection
 from dronekey.pipeline import TrackingPipeline, _Background
 from dronekey.sim_replay.backgrounds import landscape, sky, urban
 from dronekey.sim_replay.drone_look import DroneStyle
@@ -281,6 +284,39 @@ def test_wide_looks_are_staggered_over_the_tracks_and_repeated_while_taken(every
 def test_bad_wide_look_settings_name_them(scale, ratio):
     with pytest.raises(ValueError, match="wide_look_scale"):
         LocalizerConfig(wide_look_scale=scale, wide_look_ratio=ratio)
+    with pytest.raises(ValueError, match=r"acquire_recut must be > 0, got 0\.0"):
+        LocalizerConfig(acquire_recut=0.0)
+
+
+def test_a_search_reading_that_asks_for_another_framing_is_read_again_there():
+    """Shipped model, seq13 (seed 101): a sure reading whose crop is 2.5x the one its keypoints ask
+    for (as when a search crop sized from a blob is refined from an oversized rough reading) fills
+    too little of it for the plausibility gate; it is read again in the crop its keypoints ask for,
+    where it passes the gate with the drone's spread. A reading in the crop it asks for is left as it
+    is (no second batch), as is one the network is not sure of, and every reading while the recut is
+    off (the default)."""
+    pipeline = TrackingPipeline(preset_camera(), drone=SPEC, localizer=LocalizerConfig(acquire_recut=0.25))
+    localizer = pipeline.localizer
+    rf = next(iter(build_sequence("seq13", seed=101, frames=1)))
+    size = rf.image.shape[1::-1]
+    true_spread = keypoint_spread(rf.record.drone.keypoints_px)
+    right = localizer.crop.roi(box_from_keypoints(rf.record.drone.keypoints_px, SPEC))
+    (framed,) = localizer.model.detect(rf.image, [right])
+    asked = localizer.crop.roi(box_from_keypoints(framed.keypoints_px, SPEC))
+    cx, cy = asked[0] + asked[2] / 2, asked[1] + asked[2] / 2
+    oversized = (round(cx - 1.25 * asked[2]), round(cy - 1.25 * asked[2]), round(2.5 * asked[2]))
+    misframed = replace(framed, roi=oversized)
+    assert check_detection(misframed, size) is not None  # too small in its crop
+    (again,) = localizer._recut_misframed(rf.image, [misframed])
+    assert again.roi == asked
+    assert check_detection(again, size) is None
+    assert keypoint_spread(again.keypoints_px) == pytest.approx(true_spread, rel=0.15)
+    assert localizer._recut_misframed(rf.image, [framed])[0] is framed
+    unsure = replace(misframed, presence=0.1)
+    assert localizer._recut_misframed(rf.image, [unsure])[0] is unsure
+    assert LocalizerConfig().acquire_recut is None
+    default = TrackingPipeline(preset_camera(), drone=SPEC).localizer
+    assert default._recut_misframed(rf.image, [misframed])[0] is misframed
 
 
 def test_two_readings_joined_finish_as_one(pipeline):
