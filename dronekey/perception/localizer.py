@@ -72,9 +72,9 @@ class LocalizerConfig:
         across in crops of 91, 130 and 160 px), so a track whose range drifted feeds its own drift;
         5 % (not 12 %) re-frames it sooner: on the README demo (seq13, default seed) the frames
         holding the drone's track outside the range gate fell from 53 to 27.
-    acquire_recut : off (None) by default. Given, in a search a sure refined candidate is cut and read
-        once more when the crop its keypoints ask for is off the one it was read in by more than this
-        factor either way (0.25: outside 0.8-1.25x). A search crop is sized from a blob, often three
+    acquire_recut : None (the default): off. When set, a sure refined candidate of a search is cut and
+        read once more when the crop its keypoints ask for is off the one it was read in by more than
+        this factor either way (0.25: outside 0.8-1.25x). A search crop is sized from a blob, often three
         times the drone, whose rough reading overestimates it; the refined crop cut from that is
         then still too large, and its reading, though right, can fill too little of it for the
         plausibility gate (s9210 of tuning seed 9201: crops of 129-145 px on a drone 47 px across,

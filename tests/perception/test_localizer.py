@@ -284,6 +284,9 @@ def test_wide_looks_are_staggered_over_the_tracks_and_repeated_while_taken(every
 def test_bad_wide_look_settings_name_them(scale, ratio):
     with pytest.raises(ValueError, match="wide_look_scale"):
         LocalizerConfig(wide_look_scale=scale, wide_look_ratio=ratio)
+
+
+def test_a_bad_acquire_recut_is_named():
     with pytest.raises(ValueError, match=r"acquire_recut must be > 0, got 0\.0"):
         LocalizerConfig(acquire_recut=0.0)
 
