@@ -196,6 +196,8 @@ def _cmd_robustness(args: argparse.Namespace) -> int:
         raise _UsageError(f"--drone-free must be >= 0, got {args.drone_free}")
     if args.dither is not None and args.dither < 0:
         raise _UsageError(f"--dither must be >= 0, got {args.dither}")
+    if args.acquire_recut is not None and not args.acquire_recut > 0:
+        raise _UsageError(f"--acquire-recut must be > 0, got {args.acquire_recut}")
     if args.seeds is not None:
         negative = [s for s in args.seeds if s < 0]
         if negative:
@@ -230,6 +232,7 @@ def _cmd_robustness(args: argparse.Namespace) -> int:
             select=args.select,
             dither=args.dither,
             cue_free=args.cue_free,
+            acquire_recut=args.acquire_recut,
         )
     except ImportError as exc:  # --background photos without scikit-image / scikit-learn
         raise _UsageError(str(exc)) from None
@@ -386,6 +389,14 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="SEED",
         help="add -1, 0 or +1 grey level of seeded noise to every frame before the pipeline: the "
         "figures' change against a run without is the evaluation's noise floor",
+    )
+    r.add_argument(
+        "--acquire-recut",
+        type=float,
+        metavar="F",
+        help="measure the localiser's opt-in search recut (LocalizerConfig.acquire_recut, off as "
+        "shipped): a search reading whose keypoints ask for a crop more than 1 + F times off its "
+        "own is read again there",
     )
     r.add_argument(
         "--cue-free",

@@ -479,6 +479,19 @@ def test_cli_dither_is_recorded_and_named_in_the_table(tmp_path, capsys):
     assert "--dither must be >= 0, got -2" in capsys.readouterr().err
 
 
+def test_cli_acquire_recut_is_recorded_and_named_in_the_table(tmp_path, capsys):
+    argv = ["robustness", "--out", str(tmp_path), "--quick", "--frames", "2", "--size", "320x180"]
+    argv += ["--drone-free", "1", "--select", "*nodrone*"]
+    assert main([*argv, "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["settings"]["acquire_recut"] is None  # off, as shipped
+    assert main([*argv, "--acquire-recut", "0.25", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["settings"]["acquire_recut"] == 0.25
+    assert main([*argv, "--acquire-recut", "0.25"]) == 0
+    assert "search recut 0.25" in capsys.readouterr().out.splitlines()[0]
+    assert main(["robustness", "--out", str(tmp_path), "--acquire-recut", "0"]) == 2
+    assert "--acquire-recut must be > 0, got 0.0" in capsys.readouterr().err
+
+
 def test_range_z_is_the_range_error_over_the_stated_doubt_along_the_line_of_sight():
     track = make_track(position_m=(0.0, 3.0, 4.0), position_cov=np.diag([9.0, 0.16, 0.09]))  # range 5 m
     u = np.array([0.0, 0.6, 0.8])

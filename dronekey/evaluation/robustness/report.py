@@ -122,6 +122,7 @@ class RobustnessReport:
             + (f", front/back {Path(st['front_back']).name}" if st.get("front_back") else "")
             + (f", verifier {Path(st['verifier']).name}" if st.get("verifier") else "")
             + (f", frames dithered (seed {st['dither']})" if st.get("dither") is not None else "")
+            + (f", search recut {st['acquire_recut']}" if st.get("acquire_recut") is not None else "")
             + (", every drone cue-free (no front/back cue)" if st.get("cue_free") else ""),
         ]
         if not st.get("model_has_heading_head", True):

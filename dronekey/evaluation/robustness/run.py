@@ -64,6 +64,7 @@ def run_robustness(
     select: Sequence[str] | None = None,
     dither: int | None = None,
     cue_free: bool = False,
+    acquire_recut: float | None = None,
 ) -> RobustnessReport:
     """Render the matrix (reusing what ``out_dir`` holds), run the pipeline and score it.
 
@@ -87,6 +88,8 @@ def run_robustness(
     dither : a seed: every frame gets a grey level of seeded noise before the pipeline
         (``dronekey.evaluation.robustness.dither``); the figures' change against a run without
         says how far they move on noise alone. None: the frames as decoded.
+    acquire_recut : the localiser's opt-in search recut (``LocalizerConfig.acquire_recut``); None: off,
+        as shipped.
 
     Returns
     -------
@@ -147,6 +150,7 @@ def run_robustness(
         "verifier": str(drone_verifier.path) if drone_verifier else None,
         "mirror_average": bool(mirror_average),
         "dither": None if noise is None else noise.seed,
+        "acquire_recut": acquire_recut,
         "match_gate": {"min_m": MATCH_GATE_M, "range_fraction": MATCH_GATE_FRACTION},
         "wrong_heading_deg": WRONG_HEADING_DEG,
         "confident_heading": CONFIDENT_HEADING,
@@ -174,6 +178,7 @@ def run_robustness(
                 verifier=settings["verifier"] or False,
                 on_frame=bar.update,
                 dither=noise,
+                acquire_recut=acquire_recut,
             )
             report.sequences.append(EvaluatedSequence(r, scores))
     settings["render_s"] = round(t1 - t0, 1)

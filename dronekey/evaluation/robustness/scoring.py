@@ -44,6 +44,7 @@ from dronekey.evaluation.pose import published_track_rank, sequence_spec
 from dronekey.evaluation.robustness.dither import FrameDither
 from dronekey.geometry.rotations import geodesic_angle_deg, quat_wxyz_to_matrix
 from dronekey.perception.keypoint_order import HEADING_TWIN, SYMMETRIES
+from dronekey.perception.localizer import LocalizerConfig
 from dronekey.pipeline import TrackingPipeline
 from dronekey.sim_replay.annotations import SequenceAnnotations
 from dronekey.sim_replay.io.frames import iter_frames
@@ -268,6 +269,7 @@ def score_sequence(
     verifier: bool | str | Path = True,
     on_frame: Callable[[], object] | None = None,
     dither: FrameDither | None = None,
+    acquire_recut: float | None = None,
 ) -> SequenceScores:
     """Run a fresh ``TrackingPipeline`` over a loaded sequence and score every frame.
 
@@ -283,6 +285,8 @@ def score_sequence(
     dither : every frame gets its grey level of seeded noise first
         (``dronekey.evaluation.robustness.dither``; one instance for the whole matrix, so its noise
         is drawn once): the figures' noise floor. None: the frames as decoded.
+    acquire_recut : the localiser's opt-in search recut (``LocalizerConfig.acquire_recut``); None: off,
+        as shipped.
 
     Returns
     -------
@@ -298,6 +302,7 @@ def score_sequence(
         mirror_average=mirror_average,
         heading_model=front_back,
         verifier=verifier,
+        localizer=LocalizerConfig(acquire_recut=acquire_recut),
     )
     rows: dict[str, list] = {
         k: []
