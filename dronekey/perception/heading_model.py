@@ -78,7 +78,7 @@ def heading_model_path(choice: str | Path) -> Path:
     """The file a front/back classifier choice names: a key of ``SHIPPED_HEADING_MODELS`` (``"deep"``)
     or of ``HEADING_MODEL_ALIASES`` the shipped one, anything else a path (``./deep`` for a file so
     named)."""
-    if isinstance(choice, str) and (choice in SHIPPED_HEADING_MODELS or choice in HEADING_MODEL_ALIASES):
+    if isinstance(choice, str) and HEADING_MODEL_ALIASES.get(choice, choice) in SHIPPED_HEADING_MODELS:
         return default_heading_model_path(choice)
     return Path(choice)
 

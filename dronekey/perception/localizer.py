@@ -264,13 +264,8 @@ class Localizer:
                 source[k] = j
         recut = []
         for k, src in enumerate(source):
-            det = rough[src]
-            if det.presence < cfg.presence_threshold or not np.all(np.isfinite(det.keypoints_px)):
-                continue
-            x0, y0, side = det.roi
-            nx, ny, nside = self.crop.roi(box_from_keypoints(det.keypoints_px, self.spec))
-            shift = max(abs(nx + nside / 2 - x0 - side / 2), abs(ny + nside / 2 - y0 - side / 2)) / side
-            if shift > cfg.recut_shift or abs(nside / side - 1.0) > cfg.recut_scale:
+            off = self._framing_error(rough[src])
+            if off is not None and (off[0] > cfg.recut_shift or abs(off[1] - 1.0) > cfg.recut_scale):
                 recut.append(k)
         recuts = self.refine_many(frame, [rough[source[k]] for k in recut], [asked[source[k]] for k in recut])
         again = dict(zip(recut, recuts, strict=True))
@@ -280,6 +275,17 @@ class Localizer:
         dets = dict(zip(first_cut, finished, strict=True))
         widened = [source[k] != k for k in range(len(boxes))]
         return [dets[k] if k in dets else again[k] for k in range(len(boxes))], widened
+
+    def _framing_error(self, det: KeypointDetection) -> tuple[float, float] | None:
+        """How far the crop a sure reading's keypoints ask for (``refine``'s) is from the one it was
+        read in: the centres' largest offset over its side, and the asked side over its side; None
+        for a reading without a drone (presence under the threshold, or keypoints not finite)."""
+        if det.presence < self.config.presence_threshold or not np.all(np.isfinite(det.keypoints_px)):
+            return None
+        x0, y0, side = det.roi
+        nx, ny, nside = self.crop.roi(box_from_keypoints(det.keypoints_px, self.spec))
+        shift = max(abs(nx + nside / 2 - x0 - side / 2), abs(ny + nside / 2 - y0 - side / 2)) / side
+        return shift, nside / side
 
     def _reads_wider(self, narrow: KeypointDetection, wide: KeypointDetection) -> bool:
         """Whether a wide look's reading replaces its narrow crop's: it holds a drone, centred inside
@@ -370,19 +376,14 @@ class Localizer:
         ``refined`` itself while ``acquire_recut`` is None."""
         if self.config.acquire_recut is None:
             return refined
-        thr, limit = self.config.presence_threshold, 1.0 + self.config.acquire_recut
-        asked = {
-            k: self.crop.roi(box_from_keypoints(d.keypoints_px, self.spec))
-            for k, d in enumerate(refined)
-            if d.presence >= thr and np.all(np.isfinite(d.keypoints_px))
-        }
-        redo = [k for k, roi in asked.items() if not 1.0 / limit <= roi[2] / refined[k].roi[2] <= limit]
+        limit = 1.0 + self.config.acquire_recut
+        errors = [self._framing_error(d) for d in refined]
+        redo = [k for k, off in enumerate(errors) if off is not None and not 1.0 / limit <= off[1] <= limit]
         if not redo:
             return refined
-        again = self.model.detect(frame, [asked[k] for k in redo])
         out = list(refined)
-        for k, det in zip(redo, again, strict=True):
-            if det.presence >= thr:
+        for k, det in zip(redo, self.refine_many(frame, [refined[k] for k in redo]), strict=True):
+            if det.presence >= self.config.presence_threshold:
                 out[k] = det
         return out
 
