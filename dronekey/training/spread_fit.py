@@ -18,6 +18,10 @@ drone-free false frames per 1,000 (ids): none 63.9 % / 0.871 m / 342.8 (48) / 33
 80.2 % / 0.813 m / 194.4 (35) / 22.8 (1). The factor is as good as the line on the drones, keeps
 the drone-free clips at one false object, and cannot extrapolate.
 
+``--aspect-knee K`` fits a second term, the slope's growth below the keypoints' aspect ``K``
+(``r = q (slope + aspect_slope max(0, K - a))``, least squares through the origin, the growth kept
+>= 0): edge-on drones, whose keypoints are read with a short pair, are read smaller still.
+
 Fit on tuning sequences only (``dronekey-eval robustness --tuning`` renders them), never on the
 sequences the figures are reported on.
 """
@@ -39,7 +43,12 @@ from dronekey.evaluation.pose import sequence_spec
 from dronekey.geometry.crop import CropPolicy, roi_around_box
 from dronekey.perception.keypoint_model import KeypointModel
 from dronekey.perception.localizer import box_from_keypoints
-from dronekey.perception.spread_calibration import METADATA_KEY, SpreadCalibration, normalised_spread
+from dronekey.perception.spread_calibration import (
+    METADATA_KEY,
+    SpreadCalibration,
+    keypoint_aspect,
+    normalised_spread,
+)
 from dronekey.sim_replay.annotations import UNLABELLED
 from dronekey.sim_replay.io.frames import iter_frames
 from dronekey.sim_replay.io.sequence_reader import load_sequence
@@ -76,18 +85,22 @@ def fit_spread_calibration(
     crops_per_frame: int = 4,
     seed: int = 0,
     progress: bool = False,
+    aspect_knee: float | None = None,
 ) -> SpreadFit:
-    """Fit ``r = slope * q`` on crops of ``sequences`` (sequence JSON files).
+    """Fit ``r = slope * q`` on crops of ``sequences`` (sequence JSON files); with ``aspect_knee``
+    (in (0, 1)) also the slope's growth below that keypoint aspect (``SpreadCalibration``).
 
     Raises ValueError when the sequences give fewer than 50 usable crops (no drone in them, or a
     model that finds none).
     """
     if every < 1 or crops_per_frame < 1:
         raise ValueError(f"every and crops_per_frame must be >= 1, got {every} and {crops_per_frame}")
+    if aspect_knee is not None and not 0.0 < aspect_knee < 1.0:
+        raise ValueError(f"aspect_knee must be in (0, 1), got {aspect_knee}")
     model = KeypointModel(model_path, threads=1, mirror_average=True, spread_calibration=SpreadCalibration())
     crop = CropPolicy(**{**model.metadata.get("crop_policy", {}), "input_size": model.input_size})
     rng = np.random.default_rng(seed)
-    q_all, r_all = [], []
+    q_all, r_all, a_all = [], [], []
     for path in sequences:
         seq = load_sequence(path)
         spec = sequence_spec(seq)
@@ -110,6 +123,7 @@ def fit_spread_calibration(
                 if det.presence >= 0.5:
                     q_all.append(float(normalised_spread(det.keypoints_px[None])[0]) / roi[2])
                     r_all.append(true_spread / roi[2])
+                    a_all.append(float(keypoint_aspect(det.keypoints_px[None])[0]))
     q, r = np.asarray(q_all), np.asarray(r_all)
     keep = q >= MIN_SPREAD
     if keep.sum() < 50:
@@ -117,13 +131,20 @@ def fit_spread_calibration(
             f"only {int(keep.sum())} usable crops in {len(sequences)} sequence(s) (need 50): "
             "render tuning sequences with a drone in view"
         )
-    q, r = q[keep], r[keep]
-    slope = float(np.sum(q * r) / np.sum(q * q))  # least squares through the origin: r = slope q
+    q, r, a = q[keep], r[keep], np.asarray(a_all)[keep]
     names = [Path(p).parent.name or Path(p).name for p in sequences]
     span = names[0] if len(names) == 1 else f"{names[0]} .. {names[-1]}"
     fitted_on = f"{len(q)} crops of {len(sequences)} sequences ({span})"
-    calibration = SpreadCalibration(0.0, round(slope, 5), fitted_on)
-    fitted = calibration.intercept + calibration.slope * q
+    calibration = SpreadCalibration(0.0, round(_slope(q, r), 5), fitted_on)
+    if aspect_knee is not None:
+        below = np.maximum(aspect_knee - np.nan_to_num(a, nan=1.0), 0.0)
+        (slope, growth), *_ = np.linalg.lstsq(np.c_[q, q * below], r, rcond=None)
+        if growth > 0:  # else the aspect adds nothing: the single factor stays
+            calibration = SpreadCalibration(
+                0.0, round(float(slope), 5), fitted_on, aspect_knee, round(float(growth), 5)
+            )
+    below = np.maximum(calibration.aspect_knee - np.nan_to_num(a, nan=1.0), 0.0)
+    fitted = calibration.intercept + (calibration.slope + calibration.aspect_slope * below) * q
     return SpreadFit(
         calibration,
         int(len(q)),
@@ -132,6 +153,11 @@ def fit_spread_calibration(
         float(np.median(np.abs(q / r - 1))),
         float(np.median(np.abs(fitted / r - 1))),
     )
+
+
+def _slope(q: np.ndarray, r: np.ndarray) -> float:
+    """Least squares through the origin: ``r = slope q``."""
+    return float(np.sum(q * r) / np.sum(q * q))
 
 
 def write_calibrated_model(model_path: str | Path, out: str | Path, calibration: SpreadCalibration) -> Path:
@@ -166,6 +192,13 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--out", type=Path, required=True, help="ONNX file to write (may be --model)")
     parser.add_argument("--every", type=int, default=3, help="use every N-th frame (default 3)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the crop scales and shifts (default 0)")
+    parser.add_argument(
+        "--aspect-knee",
+        type=float,
+        metavar="K",
+        help="also fit the slope's growth for keypoints whose shortest pair is under K of their longest "
+        "(edge-on drones, read small), K in (0, 1); default: one factor",
+    )
     return parser
 
 
@@ -177,14 +210,22 @@ def main(argv: list[str] | None = None) -> int:
 
     model = args.model or default_model_path()
     try:
-        fit = fit_spread_calibration(model, args.sequences, every=args.every, seed=args.seed, progress=True)
+        fit = fit_spread_calibration(
+            model,
+            args.sequences,
+            every=args.every,
+            seed=args.seed,
+            progress=True,
+            aspect_knee=args.aspect_knee,
+        )
         write_calibrated_model(model, args.out, fit.calibration)
     except (FileNotFoundError, ValueError, OSError) as exc:
         print(f"dronekey-calibrate-spread: {exc}", file=sys.stderr)
         return 2
     c = fit.calibration
+    aspect = f" (+ {c.aspect_slope:.4f} max(0, {c.aspect_knee:g} - aspect))" if c.uses_aspect else ""
     print(
-        f"r = {c.intercept:.4f} + {c.slope:.4f} q on {fit.crops} crops; mean spread error "
+        f"r = {c.intercept:.4f} + {c.slope:.4f}{aspect} q on {fit.crops} crops; mean spread error "
         f"{fit.mean_error_raw:+.4f} -> {fit.mean_error_fitted:+.4f} of the crop side, median per-crop "
         f"error {fit.median_abs_error_raw:.3f} -> {fit.median_abs_error_fitted:.3f}; wrote {args.out}"
     )

@@ -7,7 +7,7 @@ import pytest
 
 from dronekey.perception.keypoint_model import KeypointModel, ModelFormatError, default_model_path
 from dronekey.perception.plausibility import check_detection
-from dronekey.perception.spread_calibration import SpreadCalibration, normalised_spread
+from dronekey.perception.spread_calibration import SpreadCalibration, keypoint_aspect, normalised_spread
 from dronekey.types import KeypointDetection
 
 SQUARE = np.array([[[0.3, 0.3], [0.3, 0.7], [0.7, 0.7], [0.7, 0.3]]], np.float32)  # spread 0.566
@@ -26,7 +26,29 @@ def test_apply_scales_about_the_centroid_to_the_calibrated_spread():
     assert np.array_equal(calibration.apply(collapsed)[0], collapsed)  # nothing to scale
 
 
+def test_an_edge_on_drone_is_grown_more_than_a_square_one_below_the_aspect_knee():
+    # An edge-on drone: two hubs nearly in line, its shortest pair 0.18 of the longest.
+    edge_on = np.array([[[0.2, 0.5], [0.45, 0.52], [0.8, 0.5], [0.55, 0.48]]], np.float32)
+    a = float(keypoint_aspect(edge_on)[0])
+    assert a == pytest.approx(0.1795, abs=1e-3) and keypoint_aspect(SQUARE)[0] == pytest.approx(0.7071, 1e-4)
+    calibration = SpreadCalibration(0.0, 1.04, "", aspect_knee=0.35, aspect_slope=0.6)
+    (_, square_scale), (_, edge_scale) = calibration.apply(SQUARE), calibration.apply(edge_on)
+    assert square_scale[0] == pytest.approx(1.04)  # above the knee: the factor alone
+    assert edge_scale[0] == pytest.approx(1.04 + 0.6 * (0.35 - a), rel=1e-4)
+    assert not calibration.is_identity and calibration.uses_aspect
+    kept = SpreadCalibration.from_metadata({"spread_calibration": calibration.to_metadata()})
+    assert kept == calibration
+    # A calibration written before the aspect term reads as a factor alone, and writes as before.
+    old = SpreadCalibration.from_metadata({"spread_calibration": '{"intercept": 0.0, "slope": 1.04}'})
+    assert old == SpreadCalibration(0.0, 1.04) and "aspect" not in old.to_metadata()
+    assert np.isnan(keypoint_aspect(np.full((1, 4, 2), 0.5))[0])  # collapsed: no aspect
+
+
 def test_bad_calibrations_name_what_is_wrong():
+    with pytest.raises(ValueError, match=r"aspect_knee in \[0, 1\)"):
+        SpreadCalibration(0.0, 1.0, "", aspect_knee=1.5, aspect_slope=0.1)
+    with pytest.raises(ValueError, match="aspect_slope >= 0"):
+        SpreadCalibration(0.0, 1.0, "", aspect_knee=0.3, aspect_slope=-0.1)
     with pytest.raises(ValueError, match="slope > 0"):
         SpreadCalibration(0.0, 0.0)
     with pytest.raises(ValueError, match="'spread_calibration' must hold intercept and slope"):

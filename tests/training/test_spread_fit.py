@@ -34,6 +34,18 @@ def test_the_command_writes_a_model_that_applies_it(seq13, tmp_path, capsys):
     assert calibration.slope > 1.0 and calibration.intercept == 0.0
 
 
+def test_the_command_fits_the_aspect_term_when_asked(seq13, tmp_path, capsys):
+    out = tmp_path / "aspect.onnx"
+    argv = ["--sequences", str(seq13), "--every", "1", "--out", str(out), "--aspect-knee", "0.35"]
+    assert calibrate_spread_main(argv) == 0
+    calibration = KeypointModel(out).spread_calibration
+    assert calibration.slope > 1.0 and calibration.aspect_knee in (0.0, 0.35)  # 0: the term added nothing
+    if calibration.uses_aspect:
+        assert calibration.aspect_slope > 0 and "max(0, 0.35 - aspect)" in capsys.readouterr().out
+    with pytest.raises(ValueError, match=r"aspect_knee must be in \(0, 1\), got 1\.2"):
+        fit_spread_calibration(default_model_path(), [seq13], aspect_knee=1.2)
+
+
 def test_the_command_names_a_bad_input_in_one_line(tmp_path, capsys):
     assert (
         calibrate_spread_main(["--sequences", str(tmp_path / "none.json"), "--out", str(tmp_path / "m.onnx")])
