@@ -36,10 +36,12 @@ from dronekey.evaluation.robustness.matrix import (
 )
 from dronekey.evaluation.robustness.run import run_robustness
 from dronekey.perception.heading_model import heading_model_path
+from dronekey.perception.localizer import LocalizerConfig
 from dronekey.sim_replay.annotations import SequenceAnnotations
 from dronekey.sim_replay.io.frames import SequenceFrame, iter_frames
 from dronekey.sim_replay.io.sequence_reader import load_sequence
 from dronekey.sim_replay.presets import PRESETS
+from dronekey.tracking.tracker_config import TrackerConfig
 
 log = logging.getLogger("dronekey.eval")
 
@@ -198,6 +200,8 @@ def _cmd_robustness(args: argparse.Namespace) -> int:
         raise _UsageError(f"--dither must be >= 0, got {args.dither}")
     if args.acquire_recut is not None and not args.acquire_recut > 0:
         raise _UsageError(f"--acquire-recut must be > 0, got {args.acquire_recut}")
+    if args.confirm_max_outliers < 0:
+        raise _UsageError(f"--confirm-max-outliers must be >= 0, got {args.confirm_max_outliers}")
     if args.seeds is not None:
         negative = [s for s in args.seeds if s < 0]
         if negative:
@@ -232,7 +236,8 @@ def _cmd_robustness(args: argparse.Namespace) -> int:
             select=args.select,
             dither=args.dither,
             cue_free=args.cue_free,
-            acquire_recut=args.acquire_recut,
+            localizer=LocalizerConfig(acquire_recut=args.acquire_recut),
+            tracker=TrackerConfig(confirm_max_outliers=args.confirm_max_outliers),
         )
     except ImportError as exc:  # --background photos without scikit-image / scikit-learn
         raise _UsageError(str(exc)) from None
@@ -397,6 +402,14 @@ def build_parser() -> argparse.ArgumentParser:
         help="measure the localiser's opt-in search recut (LocalizerConfig.acquire_recut, off as "
         "shipped): a search reading whose keypoints ask for a crop more than 1 + F times off its "
         "own is read again there",
+    )
+    r.add_argument(
+        "--confirm-max-outliers",
+        type=int,
+        default=0,
+        metavar="N",
+        help="measure a confirmation rule that may leave out up to N hits whose range disagrees with "
+        "the rest of the window's (TrackerConfig.confirm_max_outliers, 0 as shipped)",
     )
     r.add_argument(
         "--cue-free",

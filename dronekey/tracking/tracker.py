@@ -379,11 +379,9 @@ class Tracker:
         """The confirmation rule's consistency: ranges within a factor, presence high enough, the
         pixels changing, the verifier (where there is one) calling it a drone."""
         cfg = self.config
-        ranges = [e.range_m for e in track.evidence]
-        scores = [e.presence for e in track.evidence if math.isfinite(e.presence)]
-        changes = [e.change for e in track.evidence if math.isfinite(e.change)]
-        verdicts = [e.drone_p for e in track.evidence if math.isfinite(e.drone_p)]
-        if max(ranges) > (1.0 + cfg.confirm_range_spread) * min(ranges):
+        hits = _agreeing_hits(list(track.evidence), 1.0 + cfg.confirm_range_spread)
+        if len(track.evidence) - len(hits) > cfg.confirm_max_outliers or len(hits) < cfg.confirm_hits:
+            ranges = [e.range_m for e in track.evidence]
             log.debug(
                 "track %d: ranges %.1f-%.1f m disagree; not confirmed",
                 track.track_id,
@@ -391,6 +389,9 @@ class Tracker:
                 max(ranges),
             )
             return False
+        scores = [e.presence for e in hits if math.isfinite(e.presence)]
+        changes = [e.change for e in hits if math.isfinite(e.change)]
+        verdicts = [e.drone_p for e in hits if math.isfinite(e.drone_p)]
         if scores and float(np.mean(scores)) < cfg.confirm_presence:
             log.debug("track %d: mean presence %.2f too low; not confirmed", track.track_id, np.mean(scores))
             return False
@@ -428,6 +429,21 @@ class Tracker:
             log.info("track %d dropped: unchanged for %d hits (clutter)", track.track_id, track.still_hits)
             return True
         return track.status is TrackStatus.TENTATIVE and track.frames >= self.config.confirm_window
+
+
+def _agreeing_hits(hits: list[HitEvidence], factor: float) -> list[HitEvidence]:
+    """The largest set of ``hits`` whose ranges lie within ``factor`` of each other (largest over
+    smallest), in their order; of equal sets, the one holding the later hits."""
+    by_range = sorted(range(len(hits)), key=lambda k: hits[k].range_m)
+    best: list[int] = []
+    lo = 0
+    for hi in range(len(by_range)):
+        while hits[by_range[hi]].range_m > factor * hits[by_range[lo]].range_m:
+            lo += 1
+        chosen = by_range[lo : hi + 1]
+        if len(chosen) > len(best) or (len(chosen) == len(best) and sum(chosen) > sum(best)):
+            best = chosen
+    return [hits[k] for k in sorted(best)]
 
 
 def _per_measurement(name: str, values, n: int, default) -> list:

@@ -479,11 +479,18 @@ def test_cli_dither_is_recorded_and_named_in_the_table(tmp_path, capsys):
     assert "--dither must be >= 0, got -2" in capsys.readouterr().err
 
 
-def test_cli_acquire_recut_is_recorded_and_named_in_the_table(tmp_path, capsys):
+def test_cli_pipeline_settings_under_measure_are_recorded_and_named_in_the_table(tmp_path, capsys):
     argv = ["robustness", "--out", str(tmp_path), "--quick", "--frames", "2", "--size", "320x180"]
     argv += ["--drone-free", "1", "--select", "*nodrone*"]
     assert main([*argv, "--json"]) == 0
-    assert json.loads(capsys.readouterr().out)["settings"]["acquire_recut"] is None  # off, as shipped
+    settings = json.loads(capsys.readouterr().out)["settings"]
+    assert settings["acquire_recut"] is None and settings["confirm_max_outliers"] == 0  # as shipped
+    assert main([*argv, "--confirm-max-outliers", "1", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["settings"]["confirm_max_outliers"] == 1
+    assert main([*argv, "--confirm-max-outliers", "1"]) == 0
+    assert "confirmation leaving out 1 outlying hit(s)" in capsys.readouterr().out.splitlines()[0]
+    assert main(["robustness", "--out", str(tmp_path), "--confirm-max-outliers", "-1"]) == 2
+    assert "--confirm-max-outliers must be >= 0, got -1" in capsys.readouterr().err
     assert main([*argv, "--acquire-recut", "0.25", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["settings"]["acquire_recut"] == 0.25
     assert main([*argv, "--acquire-recut", "0.25"]) == 0

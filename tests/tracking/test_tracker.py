@@ -275,6 +275,31 @@ def test_confirmation_needs_the_verifier_to_call_the_hits_a_drone():
         TrackerConfig(confirm_drone_p=1.5)
 
 
+def test_one_hit_read_at_a_wrong_range_vetoes_confirmation_unless_outliers_are_allowed():
+    """A drone at 6 m whose third reading came back at 10 m (a reading gone wrong, loose enough to
+    join its track): by default the window's ranges disagree until the track is dropped; with
+    ``confirm_max_outliers`` 1 the four that agree confirm it at its fourth hit. Two wrong readings
+    of five are one too many."""
+
+    def statuses(ranges, outliers):
+        tracker = Tracker(TrackerConfig(confirm_max_outliers=outliers))
+        out = []
+        for k, r in enumerate(ranges):
+            m = measurement(seen_from_below(0.0), [0.0, 0.0, r], pos_std=0.02 if r == 6.0 else 5.0)
+            (track,) = live(tracker.update(t_ns(k), [m], scores=[1.0])) or (None,)
+            out.append(None if track is None else track.status)
+        return out
+
+    ranges = [6.0, 6.0, 10.0, 6.0, 6.0]
+    assert TrackStatus.CONFIRMED not in statuses(ranges, 0)
+    confirmed = statuses(ranges, 1)
+    assert confirmed[2] is TrackStatus.TENTATIVE and confirmed[3] is TrackStatus.CONFIRMED
+    assert TrackStatus.CONFIRMED not in statuses([6.0, 10.0, 6.0, 10.0, 6.0], 1)
+    assert statuses([6.0] * 3, 1)[2] is TrackStatus.CONFIRMED  # agreeing hits confirm as before
+    with pytest.raises(ValueError, match="confirm_max_outliers must be an integer >= 0, got -1"):
+        TrackerConfig(confirm_max_outliers=-1)
+
+
 # ---------------------------------------------------------------------- gating and association
 def test_gating_rejects_an_outlier():
     tracker = Tracker(TrackerConfig(max_tracks=1))

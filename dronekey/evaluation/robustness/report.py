@@ -123,6 +123,11 @@ class RobustnessReport:
             + (f", verifier {Path(st['verifier']).name}" if st.get("verifier") else "")
             + (f", frames dithered (seed {st['dither']})" if st.get("dither") is not None else "")
             + (f", search recut {st['acquire_recut']}" if st.get("acquire_recut") is not None else "")
+            + (
+                f", confirmation leaving out {st['confirm_max_outliers']} outlying hit(s)"
+                if st.get("confirm_max_outliers")
+                else ""
+            )
             + (", every drone cue-free (no front/back cue)" if st.get("cue_free") else ""),
         ]
         if not st.get("model_has_heading_head", True):

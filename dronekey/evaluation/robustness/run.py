@@ -38,7 +38,9 @@ from dronekey.evaluation.robustness.seed_sets import check_seeds, seed_ranges
 from dronekey.perception.drone_verifier import load_verifier
 from dronekey.perception.heading_model import load_heading_model
 from dronekey.perception.keypoint_model import KeypointModel
+from dronekey.perception.localizer import LocalizerConfig
 from dronekey.sim_replay.io.sequence_reader import load_sequence
+from dronekey.tracking.tracker_config import TrackerConfig
 
 __all__ = ["run_robustness"]
 
@@ -64,7 +66,8 @@ def run_robustness(
     select: Sequence[str] | None = None,
     dither: int | None = None,
     cue_free: bool = False,
-    acquire_recut: float | None = None,
+    localizer: LocalizerConfig | None = None,
+    tracker: TrackerConfig | None = None,
 ) -> RobustnessReport:
     """Render the matrix (reusing what ``out_dir`` holds), run the pipeline and score it.
 
@@ -88,8 +91,9 @@ def run_robustness(
     dither : a seed: every frame gets a grey level of seeded noise before the pipeline
         (``dronekey.evaluation.robustness.dither``); the figures' change against a run without
         says how far they move on noise alone. None: the frames as decoded.
-    acquire_recut : the localiser's opt-in search recut (``LocalizerConfig.acquire_recut``); None: off,
-        as shipped.
+    localizer, tracker : the pipeline's configs, for a setting measured before it is shipped (the
+        report's settings name the two that are off as shipped: ``acquire_recut``,
+        ``confirm_max_outliers``); None: the defaults, as shipped.
 
     Returns
     -------
@@ -150,7 +154,8 @@ def run_robustness(
         "verifier": str(drone_verifier.path) if drone_verifier else None,
         "mirror_average": bool(mirror_average),
         "dither": None if noise is None else noise.seed,
-        "acquire_recut": acquire_recut,
+        "acquire_recut": (localizer or LocalizerConfig()).acquire_recut,
+        "confirm_max_outliers": (tracker or TrackerConfig()).confirm_max_outliers,
         "match_gate": {"min_m": MATCH_GATE_M, "range_fraction": MATCH_GATE_FRACTION},
         "wrong_heading_deg": WRONG_HEADING_DEG,
         "confident_heading": CONFIDENT_HEADING,
@@ -178,7 +183,8 @@ def run_robustness(
                 verifier=settings["verifier"] or False,
                 on_frame=bar.update,
                 dither=noise,
-                acquire_recut=acquire_recut,
+                localizer=localizer,
+                tracker=tracker,
             )
             report.sequences.append(EvaluatedSequence(r, scores))
     settings["render_s"] = round(t1 - t0, 1)

@@ -49,6 +49,7 @@ from dronekey.pipeline import TrackingPipeline
 from dronekey.sim_replay.annotations import SequenceAnnotations
 from dronekey.sim_replay.io.frames import iter_frames
 from dronekey.tracking.track_record import line_of_sight_variance
+from dronekey.tracking.tracker_config import TrackerConfig
 from dronekey.types import PUBLISHED_STATUSES, KeypointDetection, Track, TrackStatus
 
 __all__ = [
@@ -269,7 +270,8 @@ def score_sequence(
     verifier: bool | str | Path = True,
     on_frame: Callable[[], object] | None = None,
     dither: FrameDither | None = None,
-    acquire_recut: float | None = None,
+    localizer: LocalizerConfig | None = None,
+    tracker: TrackerConfig | None = None,
 ) -> SequenceScores:
     """Run a fresh ``TrackingPipeline`` over a loaded sequence and score every frame.
 
@@ -285,8 +287,8 @@ def score_sequence(
     dither : every frame gets its grey level of seeded noise first
         (``dronekey.evaluation.robustness.dither``; one instance for the whole matrix, so its noise
         is drawn once): the figures' noise floor. None: the frames as decoded.
-    acquire_recut : the localiser's opt-in search recut (``LocalizerConfig.acquire_recut``); None: off,
-        as shipped.
+    localizer, tracker : the pipeline's configs (a setting measured before it is shipped); None: the
+        defaults, as shipped.
 
     Returns
     -------
@@ -302,7 +304,8 @@ def score_sequence(
         mirror_average=mirror_average,
         heading_model=front_back,
         verifier=verifier,
-        localizer=LocalizerConfig(acquire_recut=acquire_recut),
+        localizer=localizer,
+        tracker=tracker,
     )
     rows: dict[str, list] = {
         k: []
