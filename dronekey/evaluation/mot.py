@@ -11,6 +11,10 @@ translation, both in the camera frame (metres); pairs farther apart than ``gate_
 
 Per ground-truth drone, the paper's Tab. VI figures over the frames where a track matched it:
 MAE-angle (deg), RMSE (m), MAE-absolute (m).
+
+``pooled_summary`` adds several sequences' matches up (motmetrics' overall row): one swarm of 300
+frames decides few track births, so its IDF1 moves by several hundredths on any perturbation
+(docs/evaluation.md, twenty-sixth session), and a figure over several seeds is the steadier one.
 """
 
 from __future__ import annotations
@@ -27,7 +31,15 @@ from dronekey.geometry.rotations import quat_wxyz_to_matrix
 from dronekey.pipeline import TrackingPipeline
 from dronekey.types import PUBLISHED_STATUSES, Frame
 
-__all__ = ["DEFAULT_GATE_M", "MotResult", "evaluate_mot", "mot_table"]
+__all__ = [
+    "DEFAULT_GATE_M",
+    "MotResult",
+    "evaluate_mot",
+    "mot_table",
+    "pooled_summary",
+    "pooled_table",
+    "pooled_to_dict",
+]
 
 log = logging.getLogger(__name__)
 
@@ -56,6 +68,7 @@ class MotResult:
     summary: dict
     per_drone: dict[int, PoseErrors] = field(default_factory=dict)
     per_drone_frames: dict[int, int] = field(default_factory=dict)
+    accumulator: mm.MOTAccumulator | None = field(default=None, repr=False, compare=False)
 
     def to_dict(self) -> dict:
         return {
@@ -119,14 +132,65 @@ def evaluate_mot(
             m["t"].append(tr.position_m)
             m["R_gt"].append(d.rotation)
             m["t_gt"].append(d.translation)
-    metrics = mm.metrics.create()
-    df = metrics.compute(acc, metrics=list(_SUMMARY), name=seq.name)
-    summary = {}
-    for key, name in _SUMMARY.items():
-        value = df[key].iloc[0]
-        summary[name] = int(value) if key.startswith(("num_", "mostly_")) else float(value)
+    df = mm.metrics.create().compute(acc, metrics=list(_SUMMARY), name=seq.name)
     per_drone = {i: pose_errors(m["R"], m["t"], m["R_gt"], m["t_gt"]) for i, m in matched.items()}
-    return MotResult(seq.name, n, float(gate_m), summary, per_drone, gt_frames)
+    return MotResult(seq.name, n, float(gate_m), _summary_row(df.iloc[0]), per_drone, gt_frames, acc)
+
+
+def _summary_row(row) -> dict:
+    """motmetrics' row -> our names (counts as int)."""
+    return {
+        name: int(row[key]) if key.startswith(("num_", "mostly_")) else float(row[key])
+        for key, name in _SUMMARY.items()
+    }
+
+
+def pooled_summary(results: list[MotResult]) -> dict:
+    """The CLEAR-MOT and identity figures of several sequences' matches added up (motmetrics'
+    overall row: MOTA, IDF1 and the counts over every frame of every sequence), plus ``frames``,
+    ``sequences`` and ``gate_m``. Raises ValueError when the results were matched with different
+    gates or hold no matches to add."""
+    if not results or any(r.accumulator is None for r in results):
+        raise ValueError("pooling needs the results of evaluate_mot (with their matches)")
+    gates = {r.gate_m for r in results}
+    if len(gates) > 1:
+        raise ValueError(f"cannot pool results matched with different gates: {sorted(gates)}")
+    df = mm.metrics.create().compute_many(
+        [r.accumulator for r in results],
+        metrics=list(_SUMMARY),
+        names=[f"{k}:{r.sequence}" for k, r in enumerate(results)],
+        generate_overall=True,
+    )
+    summary = _summary_row(df.loc["OVERALL"])
+    return {
+        "sequences": len(results),
+        "frames": sum(r.frames for r in results),
+        "gate_m": gates.pop(),
+        **summary,
+    }
+
+
+def pooled_to_dict(results: list[MotResult]) -> dict:
+    """``--json`` of several sequences: each one's ``to_dict`` and the pooled figures."""
+    overall = {k: (rounded(v) if isinstance(v, float) else v) for k, v in pooled_summary(results).items()}
+    return {"sequences": [r.to_dict() for r in results], "overall": overall}
+
+
+def pooled_table(results: list[MotResult]) -> str:
+    """Each sequence's ``mot_table``, then the pooled CLEAR-MOT / identity line."""
+    s = pooled_summary(results)
+    tables = "\n\n".join(mot_table(r) for r in results)
+    head = f"all {s['sequences']} sequences: {s['frames']} frames, 3D gate {s['gate_m']:g} m"
+    return f"{tables}\n\n{head}\n{_figures_line(s)}"
+
+
+def _figures_line(s: dict) -> str:
+    """The CLEAR-MOT / identity figures of a summary on one line."""
+    return (
+        f"MOTA {s['mota']:.3f}  MOTP {s['motp']:.3f} m  IDF1 {s['idf1']:.3f}  "
+        f"ID switches {s['id_switches']}  FP {s['false_positives']}  FN {s['false_negatives']}  "
+        f"mostly tracked {s['mostly_tracked']}  mostly lost {s['mostly_lost']}"
+    )
 
 
 def mot_table(result: MotResult) -> str:
@@ -134,10 +198,7 @@ def mot_table(result: MotResult) -> str:
     s = result.summary
     lines = [
         f"{result.sequence}: {result.frames} frames, {s['drones']} drones, 3D gate {result.gate_m:g} m",
-        f"MOTA {s['mota']:.3f}  MOTP {s['motp']:.3f} m  IDF1 {s['idf1']:.3f}  "
-        f"ID switches {s['id_switches']}  "
-        f"FP {s['false_positives']}  FN {s['false_negatives']}  mostly tracked {s['mostly_tracked']}  "
-        f"mostly lost {s['mostly_lost']}",
+        _figures_line(s),
         "",
         f"{'drone':>5} | {'matched':>11} | {'MAE-angle (deg)':>15} | {'RMSE (m)':>8} | {'MAE-abs (m)':>11}",
     ]

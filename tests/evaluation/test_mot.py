@@ -49,7 +49,38 @@ def test_mot_table_and_bad_gate(swarm_json, capsys):
     assert "--gate must be a positive distance" in capsys.readouterr().err
 
 
+def test_several_sequences_are_scored_each_and_added_up(swarm_json, capsys):
+    """Two sequences: each one's figures, then motmetrics' overall row over both, whose counts are
+    the sums of theirs (the same file twice: every count doubles, MOTA and IDF1 stay)."""
+    assert eval_main(["mot", "--sequence", str(swarm_json), str(swarm_json), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    one, overall = out["sequences"][0], out["overall"]
+    assert len(out["sequences"]) == 2 and overall["sequences"] == 2 and overall["frames"] == 24
+    for key in ("gt_boxes", "false_positives", "false_negatives", "id_switches"):
+        assert overall[key] == sum(s[key] for s in out["sequences"])
+    assert overall["mota"] == pytest.approx(one["mota"], abs=1e-3)
+    assert overall["idf1"] == pytest.approx(one["idf1"], abs=1e-3)
+    assert eval_main(["mot", "--sequence", str(swarm_json), str(swarm_json)]) == 0
+    text = capsys.readouterr().out
+    assert text.count("3D gate 1 m") == 3 and "all 2 sequences: 24 frames" in text
+    assert eval_main(["mot", "--sequence", str(swarm_json), str(swarm_json), "--video", "x.mp4"]) == 2
+    assert "--video names one sequence's video" in capsys.readouterr().err
+
+
 def test_pose_refuses_a_multi_drone_file_in_one_line(swarm_json, capsys):
     assert eval_main(["pose", "--sequence", str(swarm_json)]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "has 3 drones" in err and "dronekey-eval mot" in err
+
+
+def test_pooling_refuses_different_gates_and_results_without_matches():
+    import motmetrics as mm
+
+    from dronekey.evaluation.mot import MotResult, pooled_summary
+
+    a = MotResult("a", 1, 1.0, {}, accumulator=mm.MOTAccumulator(auto_id=True))
+    b = MotResult("b", 1, 2.0, {}, accumulator=mm.MOTAccumulator(auto_id=True))
+    with pytest.raises(ValueError, match=r"different gates: \[1\.0, 2\.0\]"):
+        pooled_summary([a, b])
+    with pytest.raises(ValueError, match="needs the results of evaluate_mot"):
+        pooled_summary([MotResult("c", 1, 1.0, {})])
