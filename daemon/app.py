@@ -76,6 +76,7 @@ def default_pipeline_factory(camera: CameraModel, config: DaemonConfig) -> Pipel
         camera,
         model_path=m.path,
         drone=m.drone,
+        drone_alternatives=tuple(m.drone_alternatives),
         threads=m.threads,
         mirror_average=m.mirror_average,
         heading_model=(m.front_back_path or m.front_back_net) if m.front_back else False,
@@ -268,7 +269,8 @@ class DaemonApp:
         self._workers = build_outputs(self.config, ctx)
 
     def _describe_model(self, pipeline: Pipeline) -> dict:
-        """The status message's ``model``: name, path, sha256, providers, input size and drone."""
+        """The status message's ``model``: name, path, sha256, providers, input size, the drone and the other
+        airframes it may be (``drone_alternatives``, with the range doubt they set: ``range_std_floor``)."""
         info = pipeline.info()
         model = dict(info.get("model") or {})
         path = model.get("path")
@@ -279,6 +281,8 @@ class DaemonApp:
             "sha256": _file_sha256(Path(path)) if path else None,
             **{k: v for k, v in model.items() if k != "path"},
             "drone": drone.get("name") if isinstance(drone, Mapping) else drone,
+            "drone_alternatives": list(info.get("drone_alternatives") or []),
+            "range_std_floor": info.get("range_std_floor"),
         }
         front_back = described.get("front_back")
         log.info(

@@ -52,7 +52,7 @@ from dronekey.tracking.tracker import Tracker, TrackPrediction
 from dronekey.tracking.tracker_config import TrackerConfig
 from dronekey.types import Frame, KeypointDetection, PoseMeasurement, PoseRejection, Track, TrackStatus
 
-__all__ = ["Measured", "PipelineOutput", "PoseTracker", "TrackingPipeline"]
+__all__ = ["Measured", "PipelineOutput", "PoseTracker", "TrackingPipeline", "airframe_range_span"]
 
 log = logging.getLogger(__name__)
 
@@ -227,6 +227,12 @@ class TrackingPipeline:
         ONNX keypoint model; the shipped one by default.
     drone : str, path or DroneSpec
         Drone spec name (``mini2``, ``air2s``), YAML file or spec: the 3D keypoints PnP uses.
+    drone_alternatives : drone specs the site may also see (names, YAML files or specs). One camera
+        reads a drone's range from its size, and cannot tell two airframes of the same shape apart
+        (the swarm's Air 2S read as a Mini 2 comes out 30 % short; docs/evaluation.md), so every
+        published track's line-of-sight doubt is kept at least the largest relative difference of
+        their diagonals from ``drone``'s times its range (``TrackerConfig.range_std_floor``; Air 2S
+        beside Mini 2: 0.418). The range itself stays ``drone``'s. Empty (default): one airframe.
     providers, threads, mirror_average : passed to ``KeypointModel`` (mirror averaging is on by
         default: a fifth less keypoint error for about 1.6x the inference time).
     heading_model : the front/back classifier (``dronekey.perception.heading_model``): True the
@@ -264,6 +270,7 @@ class TrackingPipeline:
         camera: CameraModel,
         model_path: str | Path | None = None,
         drone: str | Path | DroneSpec = "mini2",
+        drone_alternatives: tuple[str | Path | DroneSpec, ...] = (),
         providers: list[str] | None = None,
         threads: int | None = None,
         mirror_average: bool = True,
@@ -284,7 +291,12 @@ class TrackingPipeline:
         self.max_search_candidates = int_at_least("max_search_candidates", max_search_candidates, 0)
         self.search_more_every = int_at_least("search_more_every", search_more_every, 1)
         self.camera = camera
-        self.spec: DroneSpec = drone if isinstance(drone, DroneSpec) else load_spec(drone)
+        self.spec: DroneSpec = _spec(drone)
+        self.alternatives: tuple[DroneSpec, ...] = tuple(_spec(d) for d in drone_alternatives)
+        tracker = tracker or TrackerConfig()
+        span = airframe_range_span(self.spec, self.alternatives)
+        if span > tracker.range_std_floor:
+            tracker = replace(tracker, range_std_floor=span)
         self.model = KeypointModel(
             model_path,
             providers=providers,
@@ -318,6 +330,8 @@ class TrackingPipeline:
                 "verifier": str(verifier.path) if (verifier := self.model.verifier) else None,
             },
             "drone": self.spec.to_dict(),
+            "drone_alternatives": [spec.name for spec in self.alternatives],
+            "range_std_floor": self.poses.tracker.config.range_std_floor,
         }
 
     def process(self, frame: Frame) -> PipelineOutput:
@@ -442,6 +456,17 @@ class TrackingPipeline:
         measured_ids = {m.track_id for m in measured}
         recover = taken + [b for p, b in zip(owners, boxes, strict=True) if p.track_id in measured_ids]
         return measured, (recover, taken + boxes), rejections, (full, n_measured)
+
+
+def _spec(drone: str | Path | DroneSpec) -> DroneSpec:
+    return drone if isinstance(drone, DroneSpec) else load_spec(drone)
+
+
+def airframe_range_span(drone: DroneSpec, alternatives: tuple[DroneSpec, ...]) -> float:
+    """How far, as a share of the range, ``drone``'s range may be off when the drone seen is one of
+    ``alternatives``: the largest ``|diagonal_alt / diagonal - 1|`` (0 without alternatives). Range
+    goes with size, so a drone of the same shape ``k`` times larger is ``k`` times farther than read."""
+    return max((abs(alt.diagonal_m / drone.diagonal_m - 1.0) for alt in alternatives), default=0.0)
 
 
 class _Background:

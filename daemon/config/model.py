@@ -18,6 +18,13 @@ class ModelConfig(Section):
 
     path: FilePath | None = Field(None, description="ONNX model; null: the model shipped with the package")
     drone: str = Field("mini2", description="drone spec name (mini2, air2s) or a spec YAML path")
+    drone_alternatives: list[str] = Field(
+        default_factory=list,
+        description="other airframes the site may see (names or spec YAML paths): one camera cannot "
+        "tell airframes of one shape apart, so every track's published range doubt is kept at least "
+        "their largest size difference from drone's (air2s beside mini2: 42 % of the range); the range "
+        "stays drone's. Empty: one airframe",
+    )
     threads: int = Field(
         1,
         ge=1,
@@ -56,11 +63,21 @@ class ModelConfig(Section):
     @field_validator("drone")
     @classmethod
     def _known_drone(cls, v: str) -> str:
-        if v.endswith((".yaml", ".yml")):
-            if not Path(v).is_file():
-                raise ValueError("drone spec file not found")
-            return v
-        names = available_specs()
-        if v not in names:
-            raise ValueError(f"unknown drone; allowed: {', '.join(names)} or a spec .yaml path")
+        return _known_spec(v)
+
+    @field_validator("drone_alternatives")
+    @classmethod
+    def _known_alternatives(cls, v: list[str]) -> list[str]:
+        return [_known_spec(name) for name in v]
+
+
+def _known_spec(v: str) -> str:
+    """A drone spec name or an existing spec YAML path; else the error pydantic shows."""
+    if v.endswith((".yaml", ".yml")):
+        if not Path(v).is_file():
+            raise ValueError(f"drone spec file not found: {v}")
         return v
+    names = available_specs()
+    if v not in names:
+        raise ValueError(f"unknown drone {v!r}; allowed: {', '.join(names)} or a spec .yaml path")
+    return v

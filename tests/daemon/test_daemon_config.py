@@ -409,6 +409,33 @@ def test_the_model_section_chooses_the_shipped_front_back_classifier(write_confi
     assert "model.front_back_net = 'huge'" in line
 
 
+def test_other_airframes_widen_every_published_range_doubt(write_config):
+    """model.drone_alternatives reaches the pipeline: the published range doubt is kept at least the
+    airframes' size difference (Air 2S beside Mini 2: 302 / 213 mm diagonals), the info says so,
+    and an unknown airframe is one line naming it."""
+    from dronekey.daemon.app import default_pipeline_factory
+    from dronekey.geometry.drone_spec import load_spec
+    from dronekey.pipeline import airframe_range_span
+
+    camera = CameraModel.from_fov(1920, 1080, 70)
+    mini2, air2s = load_spec("mini2"), load_spec("air2s")
+    span = airframe_range_span(mini2, (air2s,))
+    assert span == pytest.approx(air2s.diagonal_m / mini2.diagonal_m - 1) and 0.41 < span < 0.42
+    assert airframe_range_span(air2s, (mini2,)) == pytest.approx(1 - mini2.diagonal_m / air2s.diagonal_m)
+    assert airframe_range_span(mini2, ()) == 0.0
+    one = default_pipeline_factory(camera, load_config(write_config("source: {uri: sim://seq13}\n"), {}))
+    assert one.info()["drone_alternatives"] == [] and one.info()["range_std_floor"] == 0.07  # as before
+    cfg = write_config("source: {uri: sim://seq13}\nmodel: {drone_alternatives: [air2s]}\n")
+    mixed = default_pipeline_factory(camera, load_config(cfg, {}))
+    assert mixed.poses.tracker.config.range_std_floor == pytest.approx(span)
+    assert mixed.info()["drone_alternatives"] == ["air2s"] and mixed.spec.name == "mini2"
+    bad = write_config("model: {drone_alternatives: [air2s, phantom4]}\n")
+    result = run_cli("--config", str(bad), "--validate-config")
+    assert result.returncode == ExitCode.USAGE
+    (line,) = error_lines(result.stderr)
+    assert "model.drone_alternatives = ['air2s', 'phantom4']" in line and "unknown drone 'phantom4'" in line
+
+
 def test_a_bad_tracking_value_is_one_line(write_config):
     cfg = write_config("source: {uri: sim://seq13}\ntracking: {search_more_every: 0}\n")
     result = run_cli("--config", str(cfg), "--validate-config")
