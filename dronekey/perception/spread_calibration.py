@@ -20,8 +20,10 @@ It may also know that a drone seen edge-on is read smaller: where the keypoints'
 ``aspect_slope * (aspect_knee - a)``. On GT-framed crops of the 36 drone sequences of tuning seeds
 8001 and 9101 the shipped network, uncalibrated, read the spread at 0.77 / 0.83 of the truth with
 ``a`` < 0.15, 0.83 / 0.87 at 0.15-0.25, 0.94 / 0.95 at 0.25-0.35 and 0.98-0.99 above: a single
-factor leaves edge-on drones 10-20 % too far (docs/evaluation.md, twenty-sixth session). The
-shipped model carries one factor (intercept 0), fitted on tuning renders by
+factor leaves edge-on drones 10-20 % too far. Refit so on tuning seed 8001, it raised the tuning
+matrix's false-track frames by 29 % (a short pair in tracking is as often a reading gone wrong as an
+edge-on drone; docs/evaluation.md, twenty-sixth session), so the shipped model has no aspect term.
+The shipped model carries one factor (intercept 0), fitted on tuning renders by
 ``dronekey-calibrate-spread``, which says why a factor and not a line. The fit is the model's, so it
 travels in the ONNX metadata (``spread_calibration``); a model without one is left as it is
 (``identity``).
@@ -35,7 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["SpreadCalibration", "keypoint_aspect", "normalised_spread"]
+__all__ = ["SpreadCalibration", "below_knee", "keypoint_aspect", "normalised_spread"]
 
 METADATA_KEY = "spread_calibration"
 SCALE_LIMITS = (0.5, 2.0)  # the most the calibration may shrink or grow a crop's keypoints
@@ -45,6 +47,11 @@ def normalised_spread(keypoints: np.ndarray) -> np.ndarray:
     """Longest pairwise distance of each crop's keypoints, (B, 4, 2) -> (B,), in their units."""
     kp = np.asarray(keypoints, dtype=np.float64)
     return np.linalg.norm(kp[:, :, None, :] - kp[:, None, :, :], axis=-1).max(axis=(1, 2))
+
+
+def below_knee(aspect: np.ndarray, knee: float) -> np.ndarray:
+    """``max(0, knee - aspect)`` per crop; an unknown aspect (NaN, a collapsed answer) counts as 1."""
+    return np.maximum(knee - np.nan_to_num(np.asarray(aspect, dtype=np.float64), nan=1.0), 0.0)
 
 
 def keypoint_aspect(keypoints: np.ndarray) -> np.ndarray:
@@ -97,8 +104,7 @@ class SpreadCalibration:
         """The slope each crop's keypoints (B, 4, 2) get: ``slope``, grown below the aspect knee."""
         if not self.uses_aspect:
             return np.full(len(keypoints), self.slope)
-        below = np.maximum(self.aspect_knee - np.nan_to_num(keypoint_aspect(keypoints), nan=1.0), 0.0)
-        return self.slope + self.aspect_slope * below
+        return self.slope + self.aspect_slope * below_knee(keypoint_aspect(keypoints), self.aspect_knee)
 
     def apply(self, keypoints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Keypoints (B, 4, 2) in normalised crop units -> (calibrated keypoints, scale (B,)).

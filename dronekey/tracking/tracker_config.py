@@ -78,7 +78,9 @@ class TrackerConfig:
         set, which must still hold ``confirm_hits`` hits. 0: every hit of the window must agree.
         A reading gone wrong (a collapsed or quarter-turned order, 1.5-2x off in range) on one
         frame of five then no longer vetoes a drone that the others agree on (s8006 of tuning
-        seed 8001: six tracks of one drone born and dropped so in 55 frames).
+        seed 8001: six tracks of one drone born and dropped so in 55 frames). Measured with 1 on
+        three tuning sets: detection up half a point, but 8001's false-track frames up 16 % (hits
+        that agree at a quarter-turned range confirm too), so 0 stays (docs/evaluation.md).
     confirm_presence : their mean presence score at least this (NaN scores are not counted).
     confirm_min_presence : and every one of them at least this: the network must be sure of each
         confirming detection, not on average. On the tuning seeds the shipped model scored 738 of

@@ -46,6 +46,7 @@ from dronekey.perception.localizer import box_from_keypoints
 from dronekey.perception.spread_calibration import (
     METADATA_KEY,
     SpreadCalibration,
+    below_knee,
     keypoint_aspect,
     normalised_spread,
 )
@@ -137,14 +138,13 @@ def fit_spread_calibration(
     fitted_on = f"{len(q)} crops of {len(sequences)} sequences ({span})"
     calibration = SpreadCalibration(0.0, round(_slope(q, r), 5), fitted_on)
     if aspect_knee is not None:
-        below = np.maximum(aspect_knee - np.nan_to_num(a, nan=1.0), 0.0)
-        (slope, growth), *_ = np.linalg.lstsq(np.c_[q, q * below], r, rcond=None)
+        (slope, growth), *_ = np.linalg.lstsq(np.c_[q, q * below_knee(a, aspect_knee)], r, rcond=None)
         if growth > 0:  # else the aspect adds nothing: the single factor stays
             calibration = SpreadCalibration(
                 0.0, round(float(slope), 5), fitted_on, aspect_knee, round(float(growth), 5)
             )
-    below = np.maximum(calibration.aspect_knee - np.nan_to_num(a, nan=1.0), 0.0)
-    fitted = calibration.intercept + (calibration.slope + calibration.aspect_slope * below) * q
+    grown = calibration.aspect_slope * below_knee(a, calibration.aspect_knee)
+    fitted = calibration.intercept + (calibration.slope + grown) * q
     return SpreadFit(
         calibration,
         int(len(q)),
