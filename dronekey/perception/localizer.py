@@ -437,12 +437,14 @@ def saliency_pass(
     scale = min(1.0, cfg.work_width / w)
     small = downscaled_bgr(frame, round(w * scale), round(h * scale)).astype(np.float32)
     background = cv2.GaussianBlur(small, (0, 0), cfg.background_sigma)
-    maps = [_max_abs_difference(small, background)]
+    maps = [(_max_abs_difference(small, background), False)]
     if cfg.use_motion and previous_small is not None and previous_small.shape == small.shape:
-        maps.append(_max_abs_difference(small, previous_small))
+        # Two 8-bit images' difference: whole grey levels, whose median a histogram finds
+        maps.append((_max_abs_difference(small, previous_small), True))
     max_side = cfg.max_drone_px * scale
     per_map = [
-        sorted(_blobs(m, cfg.min_contrast, max_side, cfg.peaks_per_region), key=lambda b: -b[0]) for m in maps
+        sorted(_blobs(m, cfg.min_contrast, max_side, cfg.peaks_per_region, levels), key=lambda b: -b[0])
+        for m, levels in maps
     ]
     return Saliency(tuple(_take_in_turn(per_map)), scale, small)
 
@@ -538,16 +540,40 @@ def _median(values: np.ndarray) -> float:
     return float((part[:k].max() + part[k]) / np.float32(2))  # np.median: float32 mean of the two
 
 
+def _median_of_levels(values: np.ndarray, step: float) -> float:
+    """``_median(values)``, bit for bit, for float32 values that are whole multiples of ``step``
+    (>= 0, fewer than 2 ** 16 steps): a histogram instead of a partition, which is slow on the
+    many equal values of a motion map (3.2 against 0.2 ms for a 480 x 270 map here)."""
+    flat = values.ravel()
+    counts = np.cumsum(np.bincount((flat if step == 1.0 else flat * np.float32(1.0 / step)).astype(np.intp)))
+    k = flat.size // 2
+    upper = np.float32(np.searchsorted(counts, k + 1) * step)  # the value at sorted position k
+    if flat.size % 2:
+        return float(upper)
+    lower = np.float32(np.searchsorted(counts, k) * step)  # at position k - 1
+    return float((lower + upper) / np.float32(2))
+
+
 def _blobs(
-    saliency: np.ndarray, min_contrast: float, max_side: float | None = None, peaks: int = 3
+    saliency: np.ndarray,
+    min_contrast: float,
+    max_side: float | None = None,
+    peaks: int = 3,
+    levels: bool = False,
 ) -> list[tuple[float, Box]]:
     """Connected regions of high saliency as (score, box in the map's pixels).
 
     A region whose box is longer than ``max_side`` is replaced by its ``peaks`` strongest local
     maxima, each with the box of the pixels around it above half its value (``_peak_blobs``).
+    ``levels``: the map holds whole grey levels (a difference of two 8-bit images), whose median
+    and median deviation come from a histogram, the same to the bit.
     """
-    med = _median(saliency)
-    mad = _median(np.abs(saliency - np.float32(med))) + 1e-3
+    if levels:
+        med = _median_of_levels(saliency, 1.0)
+        mad = _median_of_levels(np.abs(saliency - np.float32(med)), 0.5) + 1e-3
+    else:
+        med = _median(saliency)
+        mad = _median(np.abs(saliency - np.float32(med))) + 1e-3
     thr = max(min_contrast, med + 8.0 * 1.4826 * mad)
     mask = (saliency > thr).astype(np.uint8)
     mask = cv2.dilate(mask, np.ones((3, 3), np.uint8), iterations=2)

@@ -5,7 +5,14 @@ import cv2
 import numpy as np
 import pytest
 
-from dronekey.perception.localizer import LocalizerConfig, _blobs, _max_abs_difference, _median, propose_rois
+from dronekey.perception.localizer import (
+    LocalizerConfig,
+    _blobs,
+    _max_abs_difference,
+    _median,
+    _median_of_levels,
+    propose_rois,
+)
 
 
 def reference_blobs(saliency, min_contrast):
@@ -33,6 +40,27 @@ def test_median_is_numpys(n):
         assert _median(values) == float(np.median(values))
         rounded = np.round(values)  # many ties
         assert _median(rounded) == float(np.median(rounded))
+
+
+@pytest.mark.parametrize("n", [1, 2, 7, 8, 129_600, 129_601])
+def test_the_median_of_whole_grey_levels_is_the_partitions_to_the_bit(n):
+    """A motion map (two 8-bit images' difference, mostly still: many zeros) and its deviations
+    from its median, in half levels: the histogram's median is ``_median``'s."""
+    rng = np.random.default_rng(n)
+    for top in (1, 3, 60, 256):
+        levels = rng.integers(0, top, n).astype(np.float32)
+        levels[rng.random(n) < 0.4] = 0.0
+        med = _median(levels)
+        assert _median_of_levels(levels, 1.0) == med
+        deviations = np.abs(levels - np.float32(med))  # multiples of 0.5 when med is a half level
+        assert _median_of_levels(deviations, 0.5) == _median(deviations)
+
+
+def test_motion_blobs_from_the_histogram_are_the_reference_blobs():
+    rng = np.random.default_rng(2)
+    for k in range(20):
+        motion = np.round(rng.random((270, 480)) ** (4 + k % 8) * 120).astype(np.float32)
+        assert _blobs(motion, 12.0, levels=True) == reference_blobs(motion, 12.0)
 
 
 def test_max_abs_difference_is_numpys():
