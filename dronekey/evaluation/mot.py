@@ -75,7 +75,7 @@ class MotResult:
             "sequence": self.sequence,
             "frames": self.frames,
             "gate_m": self.gate_m,
-            **{k: (rounded(v) if isinstance(v, float) else v) for k, v in self.summary.items()},
+            **_rounded_figures(self.summary),
             "per_drone": [
                 {"instance_id": i, "gt_frames": self.per_drone_frames[i], **self.per_drone[i].to_dict()}
                 for i in sorted(self.per_drone)
@@ -172,8 +172,12 @@ def pooled_summary(results: list[MotResult]) -> dict:
 
 def pooled_to_dict(results: list[MotResult]) -> dict:
     """``--json`` of several sequences: each one's ``to_dict`` and the pooled figures."""
-    overall = {k: (rounded(v) if isinstance(v, float) else v) for k, v in pooled_summary(results).items()}
-    return {"sequences": [r.to_dict() for r in results], "overall": overall}
+    return {"sequences": [r.to_dict() for r in results], "overall": _rounded_figures(pooled_summary(results))}
+
+
+def _rounded_figures(summary: dict) -> dict:
+    """A summary for JSON: its floats rounded as every evaluation rounds them, counts as they are."""
+    return {k: (rounded(v) if isinstance(v, float) else v) for k, v in summary.items()}
 
 
 def pooled_table(results: list[MotResult]) -> str:

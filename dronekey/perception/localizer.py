@@ -543,7 +543,7 @@ def _median(values: np.ndarray) -> float:
 def _median_of_levels(values: np.ndarray, step: float) -> float:
     """``_median(values)``, bit for bit, for float32 values that are whole multiples of ``step``
     (>= 0, fewer than 2 ** 16 steps): a histogram instead of a partition, which is slow on the
-    many equal values of a motion map (3.2 against 0.2 ms for a 480 x 270 map here)."""
+    many equal values of a motion map (3.0 against 0.3 ms for a 480 x 270 map here)."""
     flat = values.ravel()
     counts = np.cumsum(np.bincount((flat if step == 1.0 else flat * np.float32(1.0 / step)).astype(np.intp)))
     k = flat.size // 2
