@@ -53,8 +53,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="the classifier's net: gated (four convs and a second, symmetric logit that says whether "
         "the body shows a front at all and pulls the answer to 0.5 when it does not: the shipped "
         "dronekey_heading.onnx), small (the same without the gate, shipped until the twenty-first "
-        "session) or deep (six convs, the shipped opt-in dronekey_heading_deep.onnx: --seeds 31001 "
-        "31002 31003 31004 --epochs 4)",
+        "session), deep (six convs, the shipped opt-in dronekey_heading_deep.onnx: --seeds 31001 "
+        "31002 31003 31004 --epochs 4) or deep-gated (the six convs with the gate, over the default "
+        "seeds)",
     )
     p.add_argument("--export", default=None, help="ONNX file to write (default: OUT/heading.onnx)")
     return p
