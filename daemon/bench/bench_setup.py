@@ -23,6 +23,7 @@ class BenchSetup:
     front_back : False turns ``model.front_back`` off (the front/back classifier's cost, measured).
     mirror_average : False turns ``model.mirror_average`` off (each crop once, not with its mirror:
         what the averaging costs on a box, measured).
+    front_back_path : another front/back classifier (``model.front_back_path``): what it costs.
     """
 
     source: Path
@@ -32,6 +33,7 @@ class BenchSetup:
     model_threads: int | None = None
     front_back: bool = True
     mirror_average: bool = True
+    front_back_path: Path | None = None
 
     def check(self) -> None:
         """Raise ``BenchError`` naming the first missing input file."""
@@ -41,6 +43,8 @@ class BenchSetup:
             raise BenchError(f"--calib: no such file: {self.calib}")
         if self.model is not None and not self.model.is_file():
             raise BenchError(f"--model: no such file: {self.model}")
+        if self.front_back_path is not None and not self.front_back_path.is_file():
+            raise BenchError(f"--front-back: no such file: {self.front_back_path}")
         if self.model is None and not default_model_path().is_file():
             raise BenchError(
                 f"the shipped model {default_model_path()} is not built yet; pass --model FILE "
@@ -65,6 +69,7 @@ class BenchSetup:
             "model.path": (self.model, "--model"),
             "source.decode_threads": (self.decode_threads, "--decode-threads"),
             "model.threads": (self.model_threads, "--model-threads"),
+            "model.front_back_path": (self.front_back_path, "--front-back"),
         }
         overrides.update(
             {key: (str(v) if isinstance(v, Path) else v, flag) for key, (v, flag) in optional.items() if v}

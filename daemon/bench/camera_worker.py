@@ -88,6 +88,7 @@ def main(argv: list[str] | None = None) -> int:
         args.get("model_threads"),
         args.get("front_back", True),
         args.get("mirror_average", True),
+        Path(args["front_back_path"]) if args.get("front_back_path") else None,
     )
     try:
         report = run_camera(setup, args["camera"], args["frames"], args["warmup"], args["clip_fps"])

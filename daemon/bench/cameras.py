@@ -52,6 +52,7 @@ def _worker_command(
         "model_threads": setup.model_threads,
         "front_back": setup.front_back,
         "mirror_average": setup.mirror_average,
+        "front_back_path": str(setup.front_back_path) if setup.front_back_path else None,
         "camera": camera_id,
         "frames": frames,
         "warmup": warmup,

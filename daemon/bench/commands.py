@@ -61,6 +61,7 @@ def _setup(args: argparse.Namespace) -> BenchSetup:
         args.model_threads,
         not args.no_front_back,
         not args.no_mirror_average,
+        args.front_back,
     )
 
 
@@ -144,6 +145,14 @@ def _common_arguments(parser: argparse.ArgumentParser) -> None:
         "--no-front-back",
         action="store_true",
         help="run without the front/back classifier (model.front_back false), to measure its cost",
+    )
+    parser.add_argument(
+        "--front-back",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="ONNX front/back classifier to run instead of the shipped one (model.front_back_path), "
+        "to measure what another one costs",
     )
     parser.add_argument(
         "--no-mirror-average",

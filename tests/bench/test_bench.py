@@ -15,6 +15,7 @@ import pytest
 from daemon_media import encode_clip, write_untrained_model
 
 from dronekey.geometry.camera import CameraModel
+from dronekey.perception.heading_model import default_heading_model_path
 
 PIPELINE_KEYS = {
     "frames",
@@ -98,6 +99,16 @@ def test_pipeline_thread_overrides_reach_the_daemon(assets):
     assert details["mirror_average"] is False  # and the mirror averaging's
 
 
+def test_pipeline_runs_another_front_back_classifier(assets):
+    deep = default_heading_model_path("deep")
+    result = bench(
+        "pipeline", *common(assets), "--frames", "10", "--latency-frames", "6", "--warmup", "2",
+        "--front-back", str(deep), "--json",
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    assert json.loads(result.stdout)["details"]["front_back"] == str(deep)  # what another one costs
+
+
 def test_soak_reports_rss_over_time(assets):
     result = bench(
         "soak", *common(assets), "--frames", "40", "--warmup", "10", "--sample-s", "0.2",
@@ -124,6 +135,7 @@ def test_soak_over_the_growth_limit_exits_1(assets):
     [
         (["--source", "absent.mp4"], "--source: no such file"),
         (["--model", "absent.onnx"], "--model: no such file"),
+        (["--front-back", "absent.onnx"], "--front-back: no such file"),
         (["--frames", "5", "--warmup", "10"], "must exceed --warmup"),
     ],
 )
