@@ -23,11 +23,20 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
 
 from dronekey.frame_image import FrameImage, region_bgr
 
-__all__ = ["BOX_GROWTH", "HUB_HALF_SIDE", "MAX_SAMPLES_PER_SIDE", "RING_GROWTH", "frame_change"]
+__all__ = [
+    "BOX_GROWTH",
+    "HUB_HALF_SIDE",
+    "MAX_SAMPLES_PER_SIDE",
+    "RING_GROWTH",
+    "frame_change",
+    "largest_channel_change",
+    "percentile_95_of_levels",
+]
 
 BOX_GROWTH = 0.35  # the keypoints' box grown by this share of its longer side on each side (propellers)
 RING_GROWTH = 0.5  # the ring: that box grown by a further share of the keypoints' longer side (+ 4 px)
@@ -76,9 +85,8 @@ def frame_change(
     if c1 - c0 < 3 or r1 - r0 < 3:
         return math.nan
     step = max(1, math.ceil(max(o1 - o0, q1 - q0) / MAX_SAMPLES_PER_SIDE))
-    a = region_bgr(current, o0, q0, o1, q1)[::step, ::step].astype(np.int16)
-    b = region_bgr(previous, o0, q0, o1, q1)[::step, ::step].astype(np.int16)
-    change = np.abs(a - b).max(axis=2)
+    now, before = (region_bgr(image, o0, q0, o1, q1)[::step, ::step] for image in (current, previous))
+    change = largest_channel_change(now, before)
     rows = np.arange(q0, q1, step)[:, None]
     cols = np.arange(o0, o1, step)[None, :]
     inside = (rows >= r0) & (rows < r1) & (cols >= c0) & (cols < c1)
@@ -89,4 +97,29 @@ def frame_change(
     box, ring = change[hubs & inside], change[~inside]
     if box.size == 0 or ring.size == 0:
         return math.nan
-    return float(np.percentile(box, 95) - np.percentile(ring, 95))
+    return percentile_95_of_levels(box) - percentile_95_of_levels(ring)
+
+
+def largest_channel_change(current: np.ndarray, previous: np.ndarray) -> np.ndarray:
+    """(h, w) uint8: the largest of the three channels' absolute differences of two (h, w, 3) uint8
+    BGR images, the same values as ``np.abs(a.astype(int16) - b.astype(int16)).max(axis=2)`` at a
+    twentieth of its cost (a reduction over the last, 3-long axis is numpy's slow case: 0.28 against
+    0.014 ms for 106 x 106 px here)."""
+    diff = cv2.absdiff(np.ascontiguousarray(current), np.ascontiguousarray(previous))
+    return np.maximum(np.maximum(diff[..., 0], diff[..., 1]), diff[..., 2])
+
+
+def percentile_95_of_levels(values: np.ndarray) -> float:
+    """``np.percentile(values, 95)`` (linear interpolation between the two order statistics around
+    the 0.95 (n - 1)-th) of non-empty uint8 ``values``, from a histogram instead of a partition: a
+    quarter of the cost on the few thousand values of a detection's ring, the same float (tested
+    against numpy)."""
+    n = values.size
+    counts = np.cumsum(np.bincount(values.ravel(), minlength=256))
+    position = (n - 1) * 0.95
+    below = math.floor(position)
+    fraction = position - below
+    lower = float(np.searchsorted(counts, below + 1))  # the value at sorted position `below`
+    upper = float(np.searchsorted(counts, min(below + 2, n)))  # at `below + 1` (the last at the end)
+    step = upper - lower
+    return upper - step * (1.0 - fraction) if fraction >= 0.5 else lower + step * fraction  # numpy's lerp

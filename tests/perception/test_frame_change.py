@@ -8,7 +8,7 @@ import math
 import cv2
 import numpy as np
 
-from dronekey.perception.frame_change import frame_change
+from dronekey.perception.frame_change import frame_change, largest_channel_change, percentile_95_of_levels
 
 KEYPOINTS = np.array([[980.0, 520.0], [980.0, 560.0], [940.0, 560.0], [940.0, 520.0]])
 
@@ -58,3 +58,22 @@ def test_a_near_drone_with_spinning_propellers_is_strided_not_skipped():
                 cv2.line(frame, (x, y), end, (15, 15, 15), 14)
         frames.append(frame)
     assert frame_change(frames[1], frames[0], hubs) > 30.0
+
+
+def test_largest_channel_change_is_the_int16_reduction_to_the_value():
+    rng = np.random.default_rng(5)
+    a = rng.integers(0, 256, (90, 130, 3), dtype=np.uint8)
+    b = rng.integers(0, 256, (90, 130, 3), dtype=np.uint8)
+    for cur, prev in ((a, b), (a[::3, ::2], b[::3, ::2]), (a[:1, :1], b[:1, :1])):  # strided views too
+        expected = np.abs(cur.astype(np.int16) - prev.astype(np.int16)).max(axis=2)
+        got = largest_channel_change(cur, prev)
+        assert got.dtype == np.uint8 and np.array_equal(got, expected)
+
+
+def test_percentile_95_of_levels_is_numpys_to_the_bit():
+    rng = np.random.default_rng(11)
+    for _ in range(3000):
+        n = int(rng.integers(1, 5000))
+        values = rng.integers(0, int(rng.integers(1, 257)), n).astype(np.uint8)
+        assert percentile_95_of_levels(values) == np.percentile(values, 95)
+    assert percentile_95_of_levels(np.full((3, 4), 7, np.uint8)) == 7.0  # any shape, one value
