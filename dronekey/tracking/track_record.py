@@ -22,7 +22,16 @@ from dronekey.tracking.position_filter import ConstantVelocityFilter
 from dronekey.tracking.tracker_config import TrackerConfig
 from dronekey.types import PoseMeasurement, Track, TrackStatus
 
-__all__ = ["NS_PER_S", "HitEvidence", "TrackRecord", "line_of_sight_variance", "with_range_doubt"]
+__all__ = [
+    "NS_PER_S",
+    "SURE_LOG_ODDS",
+    "HitEvidence",
+    "TrackRecord",
+    "hub_spread_px",
+    "line_of_sight_variance",
+    "size_bound_log_odds",
+    "with_range_doubt",
+]
 
 NS_PER_S = 1_000_000_000
 
@@ -54,6 +63,23 @@ def with_range_doubt(cov: np.ndarray, position_m: np.ndarray, scale: float, floo
     var = float(u @ cov @ u)
     wanted = max(scale * math.sqrt(max(var, 0.0)), floor * range_m) ** 2
     return cov + max(wanted - var, 0.0) * np.outer(u, u)
+
+
+SURE_LOG_ODDS = 2.0 * math.atanh(0.5)  # heading_confidence 0.5: the outputs' "sure"
+
+
+def hub_spread_px(keypoints_px: np.ndarray) -> float:
+    """The longest distance between any two of the four hubs (px): the drone's size in the image."""
+    kp = np.asarray(keypoints_px, dtype=np.float64)
+    return float(np.max(np.linalg.norm(kp[:, None, :] - kp[None, :, :], axis=-1)))
+
+
+def size_bound_log_odds(spread_px: float, full_spread_px: float) -> float:
+    """The most heading log-odds a drone whose hubs are ``spread_px`` apart may be published with:
+    0 up to ``full_spread_px / 2``, rising linearly to ``SURE_LOG_ODDS`` at ``full_spread_px``
+    (``TrackerConfig.heading_full_spread_px``) and on at that slope."""
+    half = full_spread_px / 2.0
+    return max(0.0, SURE_LOG_ODDS * (spread_px - half) / half)
 
 
 class HitEvidence(NamedTuple):
@@ -101,6 +127,7 @@ class TrackRecord:
         # followed is the right one), as a restart sets them
         self.reinitialise_orientation(measurement.R, cov[3:, 3:], config)
         self.score = hit.presence
+        self.spread_px: float | None = None  # the last detection's hub spread, kept through misses
         self.keypoints_px = keypoints_px
         self.reprojection_px = float(measurement.reprojection_px)
         self.keypoint_motion = KeypointMotion()  # where its keypoints are expected (association)
@@ -114,6 +141,7 @@ class TrackRecord:
         self.heading_motion_log_odds = 0.0
         self.heading_cap = config.heading_confidence_cap
         self.heading_look_rate = 1.0 / config.heading_look_frames if config.heading_look_frames > 0 else 0.0
+        self.heading_full_spread_px = config.heading_full_spread_px
 
     def add_heading_evidence(self, heading_p: float, weight: float, look: bool = True) -> None:
         """Fold one measurement's probability that its front (turned to this track's) is right;
@@ -144,14 +172,30 @@ class TrackRecord:
         self.heading_motion_log_odds = -self.heading_motion_log_odds
 
     @property
+    def keypoints_px(self) -> np.ndarray | None:
+        """The last hit's keypoints (full-frame px); None after a miss."""
+        return self._keypoints_px
+
+    @keypoints_px.setter
+    def keypoints_px(self, keypoints_px: np.ndarray | None) -> None:
+        self._keypoints_px = keypoints_px
+        if keypoints_px is not None:
+            self.spread_px = hub_spread_px(keypoints_px)
+
+    @property
     def published_heading_log_odds(self) -> float | None:
         """The log-odds the outputs are told: the accumulated ones, but never more than the look's
         recent mean (plus the flight's evidence) says. A drone seen from one side for a long time
         gives the same answer on every frame, right or wrong, so the length of the run must not turn
-        a weak answer into a sure one (docs/pose-and-tracking.md, "Front or back")."""
-        if self.heading_log_odds is None or self.heading_look_log_odds is None:
+        a weak answer into a sure one (docs/pose-and-tracking.md, "Front or back"). With
+        ``heading_full_spread_px`` the look may say no more than a drone of its size in the image
+        can show (``size_bound_log_odds``)."""
+        look = math.inf if self.heading_look_log_odds is None else self.heading_look_log_odds
+        if self.heading_full_spread_px > 0 and self.spread_px is not None:
+            look = min(look, size_bound_log_odds(self.spread_px, self.heading_full_spread_px))
+        if self.heading_log_odds is None or look == math.inf:
             return self.heading_log_odds
-        return min(self.heading_log_odds, self.heading_look_log_odds + self.heading_motion_log_odds)
+        return min(self.heading_log_odds, look + self.heading_motion_log_odds)
 
     @property
     def heading_confidence(self) -> float:

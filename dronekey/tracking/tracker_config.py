@@ -16,6 +16,7 @@ _MAY_BE_ZERO = frozenset(
         "confirm_min_change",
         "confirm_drone_p",
         "heading_from_motion",
+        "heading_full_spread_px",
         "heading_look_frames",
         "keypoint_overlap_weight",
         "range_std_floor",
@@ -126,6 +127,13 @@ class TrackerConfig:
     heading_look_frames : time constant, frames, of the running mean of the front/back classifier's
         per-frame log-odds; the published confidence never exceeds what that mean says (0: off, the
         accumulated log-odds are published).
+    heading_full_spread_px : the published confidence is also bounded by the drone's size in the
+        image: its log-odds by ``2 atanh(0.5) (s - S / 2) / (S / 2)``, s the longest distance between
+        the last detection's hubs (px), S this field: no confidence at all below ``S / 2``, "sure"
+        (0.5) allowed from ``S`` on. The front/back classifier's patch puts the hubs about 43.5 px
+        apart (the farthest 0.34 of its 64 px side from the centre); a smaller drone is upsampled
+        into it, and at half that size its front is a few blurred pixels. Only what the outputs are
+        told changes, not the front a track follows. 0 (default): off.
     heading_from_motion : log-odds per frame given to "the nose points where the drone flies"
         (multirotors mostly fly nose-first): ``w cos(nose, horizontal velocity) min(1, speed / 2
         m/s)``, the horizontal plane taken as the one normal to the drone's own vertical axis. 0
@@ -173,6 +181,7 @@ class TrackerConfig:
     heading_confidence_cap: float = 7.0
     heading_look_frames: float = 30.0
     heading_from_motion: float = 0.0
+    heading_full_spread_px: float = 0.0
     range_std_scale: float = 1.5
     range_std_floor: float = 0.07
 

@@ -17,6 +17,7 @@ from dronekey.perception.keypoint_model import (
     mirrored_back,
 )
 from dronekey.tracking.heading import twin_measurement, twin_of
+from dronekey.tracking.track_record import SURE_LOG_ODDS, hub_spread_px, size_bound_log_odds
 from dronekey.tracking.tracker import Tracker
 from dronekey.tracking.tracker_config import TrackerConfig
 from dronekey.types import TrackStatus
@@ -172,3 +173,53 @@ def test_turning_around_turns_the_looks_mean_too():
     (track,) = run(tracker, R_true, 120, 0.97, start=1)
     assert geodesic_angle_deg(quat_wxyz_to_matrix(track.quaternion_wxyz), R_true) < 3.0
     assert track.heading_confidence > 0.9
+
+
+def hubs_apart(spread_px: float) -> np.ndarray:
+    """Four hubs on a square whose diagonal (the longest hub distance) is ``spread_px``."""
+    half = spread_px / (2 * math.sqrt(2))
+    return np.array(
+        [
+            [960 + half, 540 - half],
+            [960 - half, 540 - half],
+            [960 - half, 540 + half],
+            [960 + half, 540 + half],
+        ]
+    )
+
+
+def run_sized(tracker: Tracker, R, frames: int, heading_p: float, spread_px: float):
+    tracks = []
+    for k in range(frames):
+        tracks = tracker.update(
+            t_ns(k), [measurement(R, [0.2, -0.5, 5.0])], [0.99], [hubs_apart(spread_px)], [heading_p]
+        )
+    return tracks
+
+
+def test_the_size_bound_is_none_at_half_the_full_spread_and_sure_at_it():
+    assert hub_spread_px(hubs_apart(30.0)) == pytest.approx(30.0)
+    assert size_bound_log_odds(20.0, 43.5) == 0.0
+    assert size_bound_log_odds(43.5 / 2, 43.5) == 0.0
+    assert math.tanh(size_bound_log_odds(43.5, 43.5) / 2) == pytest.approx(0.5)  # "sure" from here on
+    assert size_bound_log_odds(87.0, 43.5) == pytest.approx(3 * SURE_LOG_ODDS)
+
+
+def test_a_far_drone_is_never_published_sure_of_its_front_and_follows_the_same_one():
+    """Steady, strong answers on a drone whose hubs are 25 px apart: sure without the bound, at most
+    what its size allows with it, through a missed frame too; the front followed is the same."""
+    R = seen_from_below(15.0)
+    free, bounded = (
+        run_sized(Tracker(TrackerConfig(heading_full_spread_px=s)), R, 60, 0.97, 25.0)[0] for s in (0.0, 43.5)
+    )
+    assert free.heading_confidence > 0.9
+    assert bounded.heading_confidence <= math.tanh(size_bound_log_odds(25.0, 43.5) / 2) + 1e-12
+    assert bounded.heading_confidence < 0.1
+    assert np.allclose(free.quaternion_wxyz, bounded.quaternion_wxyz)  # only what the outputs are told
+    tracker = Tracker(TrackerConfig(heading_full_spread_px=43.5))
+    run_sized(tracker, R, 60, 0.97, 25.0)
+    (coasting,) = tracker.update(t_ns(60), [])
+    assert coasting.heading_confidence < 0.1  # the last size holds through a miss
+    # A near drone (hubs 120 px apart) is as sure as its look says.
+    (near,) = run_sized(Tracker(TrackerConfig(heading_full_spread_px=43.5)), R, 60, 0.97, 120.0)
+    assert near.heading_confidence == pytest.approx(free.heading_confidence)
