@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import sys
 from collections.abc import Iterator
 from pathlib import Path
@@ -213,6 +214,9 @@ def _cmd_robustness(args: argparse.Namespace) -> int:
         raise _UsageError(f"--acquire-recut must be > 0, got {args.acquire_recut}")
     if args.confirm_max_outliers < 0:
         raise _UsageError(f"--confirm-max-outliers must be >= 0, got {args.confirm_max_outliers}")
+    if not 0 <= args.heading_full_spread < math.inf:
+        spread = args.heading_full_spread
+        raise _UsageError(f"--heading-full-spread must be a finite number >= 0, got {spread}")
     if args.seeds is not None:
         negative = [s for s in args.seeds if s < 0]
         if negative:
@@ -248,7 +252,10 @@ def _cmd_robustness(args: argparse.Namespace) -> int:
             dither=args.dither,
             cue_free=args.cue_free,
             localizer=LocalizerConfig(acquire_recut=args.acquire_recut),
-            tracker=TrackerConfig(confirm_max_outliers=args.confirm_max_outliers),
+            tracker=TrackerConfig(
+                confirm_max_outliers=args.confirm_max_outliers,
+                heading_full_spread_px=args.heading_full_spread,
+            ),
         )
     except ImportError as exc:  # --background photos without scikit-image / scikit-learn
         raise _UsageError(str(exc)) from None
@@ -428,6 +435,14 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="N",
         help="measure a confirmation rule that may leave out up to N hits whose range disagrees with "
         "the rest of the window's (TrackerConfig.confirm_max_outliers, 0 as shipped)",
+    )
+    r.add_argument(
+        "--heading-full-spread",
+        type=float,
+        default=0.0,
+        metavar="PX",
+        help="measure a heading confidence bounded by the drone's size: none below hubs PX / 2 apart, "
+        "sure allowed from PX (TrackerConfig.heading_full_spread_px, 0 as shipped)",
     )
     r.add_argument(
         "--cue-free",

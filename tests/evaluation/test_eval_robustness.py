@@ -497,6 +497,12 @@ def test_cli_pipeline_settings_under_measure_are_recorded_and_named_in_the_table
     assert "search recut 0.25" in capsys.readouterr().out.splitlines()[0]
     assert main(["robustness", "--out", str(tmp_path), "--acquire-recut", "0"]) == 2
     assert "--acquire-recut must be > 0, got 0.0" in capsys.readouterr().err
+    assert main([*argv, "--heading-full-spread", "43.5", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["settings"]["heading_full_spread_px"] == 43.5
+    assert main([*argv, "--heading-full-spread", "43.5"]) == 0
+    assert "sure from hubs 43.5 px" in capsys.readouterr().out.splitlines()[0]
+    assert main(["robustness", "--out", str(tmp_path), "--heading-full-spread", "-1"]) == 2
+    assert "--heading-full-spread must be a finite number >= 0, got -1.0" in capsys.readouterr().err
 
 
 def test_range_z_is_the_range_error_over_the_stated_doubt_along_the_line_of_sight():

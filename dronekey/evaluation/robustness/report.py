@@ -128,6 +128,11 @@ class RobustnessReport:
                 if st.get("confirm_max_outliers")
                 else ""
             )
+            + (
+                f", heading confidence bounded by size (sure from hubs {st['heading_full_spread_px']:g} px)"
+                if st.get("heading_full_spread_px")
+                else ""
+            )
             + (", every drone cue-free (no front/back cue)" if st.get("cue_free") else ""),
         ]
         if not st.get("model_has_heading_head", True):

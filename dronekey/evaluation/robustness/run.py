@@ -156,6 +156,7 @@ def run_robustness(
         "dither": None if noise is None else noise.seed,
         "acquire_recut": (localizer or LocalizerConfig()).acquire_recut,
         "confirm_max_outliers": (tracker or TrackerConfig()).confirm_max_outliers,
+        "heading_full_spread_px": (tracker or TrackerConfig()).heading_full_spread_px,
         "match_gate": {"min_m": MATCH_GATE_M, "range_fraction": MATCH_GATE_FRACTION},
         "wrong_heading_deg": WRONG_HEADING_DEG,
         "confident_heading": CONFIDENT_HEADING,
