@@ -479,30 +479,31 @@ def test_cli_dither_is_recorded_and_named_in_the_table(tmp_path, capsys):
     assert "--dither must be >= 0, got -2" in capsys.readouterr().err
 
 
+# (flag, value, settings key, recorded value, words in the table's first line, a bad value, its error)
+SETTINGS_UNDER_MEASURE = [
+    ("--confirm-max-outliers", "1", "confirm_max_outliers", 1, "confirmation leaving out 1 outlying hit(s)",
+     "-1", "--confirm-max-outliers must be >= 0, got -1"),
+    ("--acquire-recut", "0.25", "acquire_recut", 0.25, "search recut 0.25",
+     "0", "--acquire-recut must be > 0, got 0.0"),
+    ("--heading-full-spread", "43.5", "heading_full_spread_px", 43.5, "sure from hubs 43.5 px",
+     "-1", "--heading-full-spread must be a finite number >= 0, got -1.0"),
+]  # fmt: skip
+
+
 def test_cli_pipeline_settings_under_measure_are_recorded_and_named_in_the_table(tmp_path, capsys):
     argv = ["robustness", "--out", str(tmp_path), "--quick", "--frames", "2", "--size", "320x180"]
     argv += ["--drone-free", "1", "--select", "*nodrone*"]
     assert main([*argv, "--json"]) == 0
     settings = json.loads(capsys.readouterr().out)["settings"]
     assert settings["acquire_recut"] is None and settings["confirm_max_outliers"] == 0  # as shipped
-    assert main([*argv, "--confirm-max-outliers", "1", "--json"]) == 0
-    assert json.loads(capsys.readouterr().out)["settings"]["confirm_max_outliers"] == 1
-    assert main([*argv, "--confirm-max-outliers", "1"]) == 0
-    assert "confirmation leaving out 1 outlying hit(s)" in capsys.readouterr().out.splitlines()[0]
-    assert main(["robustness", "--out", str(tmp_path), "--confirm-max-outliers", "-1"]) == 2
-    assert "--confirm-max-outliers must be >= 0, got -1" in capsys.readouterr().err
-    assert main([*argv, "--acquire-recut", "0.25", "--json"]) == 0
-    assert json.loads(capsys.readouterr().out)["settings"]["acquire_recut"] == 0.25
-    assert main([*argv, "--acquire-recut", "0.25"]) == 0
-    assert "search recut 0.25" in capsys.readouterr().out.splitlines()[0]
-    assert main(["robustness", "--out", str(tmp_path), "--acquire-recut", "0"]) == 2
-    assert "--acquire-recut must be > 0, got 0.0" in capsys.readouterr().err
-    assert main([*argv, "--heading-full-spread", "43.5", "--json"]) == 0
-    assert json.loads(capsys.readouterr().out)["settings"]["heading_full_spread_px"] == 43.5
-    assert main([*argv, "--heading-full-spread", "43.5"]) == 0
-    assert "sure from hubs 43.5 px" in capsys.readouterr().out.splitlines()[0]
-    assert main(["robustness", "--out", str(tmp_path), "--heading-full-spread", "-1"]) == 2
-    assert "--heading-full-spread must be a finite number >= 0, got -1.0" in capsys.readouterr().err
+    assert settings["heading_full_spread_px"] == 0.0
+    for flag, value, key, recorded, words, bad, error in SETTINGS_UNDER_MEASURE:
+        assert main([*argv, flag, value, "--json"]) == 0
+        assert json.loads(capsys.readouterr().out)["settings"][key] == recorded
+        assert main([*argv, flag, value]) == 0
+        assert words in capsys.readouterr().out.splitlines()[0]
+        assert main(["robustness", "--out", str(tmp_path), flag, bad]) == 2
+        assert error in capsys.readouterr().err
 
 
 def test_range_z_is_the_range_error_over_the_stated_doubt_along_the_line_of_sight():
