@@ -85,6 +85,7 @@ def default_pipeline_factory(camera: CameraModel, config: DaemonConfig) -> Pipel
             max_tracks=t.max_tracks,
             confirm_min_change=t.confirm_min_change,
             confirm_drone_p=t.confirm_drone_p,
+            heading_full_spread_px=t.heading_full_spread_px,
         ),
         search_every=t.search_every,
         search_more_every=t.search_more_every,

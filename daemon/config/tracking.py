@@ -50,3 +50,12 @@ class TrackingConfig(Section):
         "(0: off; no effect without a verifier, see model.verifier); lower confirms far drones sooner "
         "and more clutter (docs/evaluation.md)",
     )
+    heading_full_spread_px: float = Field(
+        0.0,
+        ge=0,
+        le=10000,
+        description="bound the published heading confidence by the drone's size: none while its hubs are "
+        "less than half this many px apart, sure allowed from this many on (43.5: the front/back "
+        "classifier's patch; 0: off, as shipped). Only what the outputs are told changes, at the price "
+        "of sure headings on far drones (docs/evaluation.md)",
+    )
