@@ -111,9 +111,9 @@ def largest_channel_change(current: np.ndarray, previous: np.ndarray) -> np.ndar
 
 def percentile_95_of_levels(values: np.ndarray) -> float:
     """``np.percentile(values, 95)`` (linear interpolation between the two order statistics around
-    the 0.95 (n - 1)-th) of non-empty uint8 ``values``, from a histogram instead of a partition: a
-    quarter of the cost on the few thousand values of a detection's ring, the same float (tested
-    against numpy)."""
+    the 0.95 (n - 1)-th) of non-empty uint8 ``values``, from a histogram instead of a partition: about
+    a third of the cost on the few thousand values of a detection's ring (0.015 against 0.050 ms),
+    the same float (tested against numpy)."""
     n = values.size
     counts = np.cumsum(np.bincount(values.ravel(), minlength=256))
     position = (n - 1) * 0.95

@@ -127,7 +127,8 @@ class TrackRecord:
         # followed is the right one), as a restart sets them
         self.reinitialise_orientation(measurement.R, cov[3:, 3:], config)
         self.score = hit.presence
-        self.spread_px: float | None = None  # the last detection's hub spread, kept through misses
+        self.heading_full_spread_px = config.heading_full_spread_px
+        self.spread_px: float | None = None  # the last hit's hub spread (with the size bound), kept on a miss
         self.keypoints_px = keypoints_px
         self.reprojection_px = float(measurement.reprojection_px)
         self.keypoint_motion = KeypointMotion()  # where its keypoints are expected (association)
@@ -141,7 +142,6 @@ class TrackRecord:
         self.heading_motion_log_odds = 0.0
         self.heading_cap = config.heading_confidence_cap
         self.heading_look_rate = 1.0 / config.heading_look_frames if config.heading_look_frames > 0 else 0.0
-        self.heading_full_spread_px = config.heading_full_spread_px
 
     def add_heading_evidence(self, heading_p: float, weight: float, look: bool = True) -> None:
         """Fold one measurement's probability that its front (turned to this track's) is right;
@@ -179,7 +179,7 @@ class TrackRecord:
     @keypoints_px.setter
     def keypoints_px(self, keypoints_px: np.ndarray | None) -> None:
         self._keypoints_px = keypoints_px
-        if keypoints_px is not None:
+        if keypoints_px is not None and self.heading_full_spread_px > 0:
             self.spread_px = hub_spread_px(keypoints_px)
 
     @property
