@@ -6,4 +6,5 @@ The lowest layer: numpy and OpenCV only, no other ``dronekey`` package.
 ``rotations``   quaternion (w, x, y, z) <-> rotation matrix, angle between rotations
 ``drone_spec``  a drone's four propeller hubs in its FRD body frame (``specs/*.yaml``)
 ``crop``        the square crop around a drone that the network sees, and back to frame pixels
+``apparent_size`` a drone's size in the image from its keypoints
 """

@@ -27,6 +27,7 @@ import cv2
 import numpy as np
 
 from dronekey.frame_image import FrameImage, downscaled_bgr
+from dronekey.geometry.apparent_size import keypoint_spread
 from dronekey.geometry.camera import CameraModel
 from dronekey.geometry.crop import CropPolicy, roi_around_box
 from dronekey.geometry.drone_spec import DroneSpec
@@ -137,12 +138,6 @@ class LocalizerConfig:
             raise ValueError(f"wide_look_presence must be in (0, 1], got {self.wide_look_presence}")
         if self.acquire_recut is not None and not self.acquire_recut > 0.0:
             raise ValueError(f"acquire_recut must be > 0, got {self.acquire_recut}")
-
-
-def keypoint_spread(keypoints_px: np.ndarray) -> float:
-    """Largest distance between two keypoints (px): the drone's apparent size."""
-    kp = np.asarray(keypoints_px, dtype=np.float64)
-    return float(max(np.linalg.norm(kp[i] - kp[j]) for i in range(len(kp)) for j in range(i + 1, len(kp))))
 
 
 def box_from_keypoints(keypoints_px: np.ndarray, spec: DroneSpec) -> Box:

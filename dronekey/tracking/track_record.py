@@ -15,6 +15,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from dronekey.geometry.apparent_size import keypoint_spread
 from dronekey.geometry.rotations import matrix_to_quat_wxyz
 from dronekey.tracking.keypoint_overlap import KeypointMotion
 from dronekey.tracking.orientation_filter import OrientationFilter
@@ -27,7 +28,6 @@ __all__ = [
     "SURE_LOG_ODDS",
     "HitEvidence",
     "TrackRecord",
-    "hub_spread_px",
     "line_of_sight_variance",
     "size_bound_log_odds",
     "with_range_doubt",
@@ -66,12 +66,6 @@ def with_range_doubt(cov: np.ndarray, position_m: np.ndarray, scale: float, floo
 
 
 SURE_LOG_ODDS = 2.0 * math.atanh(0.5)  # heading_confidence 0.5: the outputs' "sure"
-
-
-def hub_spread_px(keypoints_px: np.ndarray) -> float:
-    """The longest distance between any two of the four hubs (px): the drone's size in the image."""
-    kp = np.asarray(keypoints_px, dtype=np.float64)
-    return float(np.max(np.linalg.norm(kp[:, None, :] - kp[None, :, :], axis=-1)))
 
 
 def size_bound_log_odds(spread_px: float, full_spread_px: float) -> float:
@@ -180,7 +174,7 @@ class TrackRecord:
     def keypoints_px(self, keypoints_px: np.ndarray | None) -> None:
         self._keypoints_px = keypoints_px
         if keypoints_px is not None and self.heading_full_spread_px > 0:
-            self.spread_px = hub_spread_px(keypoints_px)
+            self.spread_px = keypoint_spread(keypoints_px)
 
     @property
     def published_heading_log_odds(self) -> float | None:

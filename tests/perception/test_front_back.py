@@ -8,6 +8,7 @@ import math
 import numpy as np
 import pytest
 
+from dronekey.geometry.apparent_size import keypoint_spread
 from dronekey.geometry.rotations import geodesic_angle_deg, quat_wxyz_to_matrix
 from dronekey.perception.keypoint_model import (
     HEADING_TWIN,
@@ -17,7 +18,7 @@ from dronekey.perception.keypoint_model import (
     mirrored_back,
 )
 from dronekey.tracking.heading import twin_measurement, twin_of
-from dronekey.tracking.track_record import SURE_LOG_ODDS, hub_spread_px, size_bound_log_odds
+from dronekey.tracking.track_record import SURE_LOG_ODDS, size_bound_log_odds
 from dronekey.tracking.tracker import Tracker
 from dronekey.tracking.tracker_config import TrackerConfig
 from dronekey.types import TrackStatus
@@ -198,7 +199,7 @@ def run_sized(tracker: Tracker, R, frames: int, heading_p: float, spread_px: flo
 
 
 def test_the_size_bound_is_none_at_half_the_full_spread_and_sure_at_it():
-    assert hub_spread_px(hubs_apart(30.0)) == pytest.approx(30.0)
+    assert keypoint_spread(hubs_apart(30.0)) == pytest.approx(30.0)
     assert size_bound_log_odds(20.0, 43.5) == 0.0
     assert size_bound_log_odds(43.5 / 2, 43.5) == 0.0
     assert math.tanh(size_bound_log_odds(43.5, 43.5) / 2) == pytest.approx(0.5)  # "sure" from here on
