@@ -80,7 +80,8 @@ class PipelineOutput:
     detection : the keypoints of the best track's pose this frame (confirmed tracks first), or None.
     measurement : that raw PnP pose, or None.
     mode : "track" (``detection`` came from a track's crop), "acquire" (from the whole-frame
-        search) or "none".
+        search), "predicted" (a frame between two measured ones, ``measure_every``: the tracks
+        predicted, nothing detected) or "none".
     rejection : why the best candidate gave no pose, when nothing did.
     timings_ms : wall time of each stage.
     measured : every detection that became a pose this frame, best first.
@@ -285,8 +286,10 @@ class TrackingPipeline:
         max_search_candidates: int = 2,
         search_more_every: int = 6,
         wide_look_every: int = 1,
+        measure_every: int = 1,
     ) -> None:
         self.wide_look_every = int_at_least("wide_look_every", wide_look_every, 0)
+        self.measure_every = int_at_least("measure_every", measure_every, 1)
         self.search_every = int_at_least("search_every", search_every, 0)
         self.max_search_candidates = int_at_least("max_search_candidates", max_search_candidates, 0)
         self.search_more_every = int_at_least("search_more_every", search_more_every, 1)
@@ -343,6 +346,11 @@ class TrackingPipeline:
         self.frames += 1
         timings: dict[str, float] = {}
         t0 = time.perf_counter()
+        if self._between_measurements():
+            tracks = self.poses.tracker.advance(frame.t_ns)
+            self._previous_image = frame.image
+            timings["total"] = _ms(t0)
+            return PipelineOutput(tuple(tracks), None, None, "predicted", None, timings)
         early = _Background(self.localizer.saliency, frame.image) if self._search_due() else None
         measured, regions, rejections, state = self._track_crops(frame, w, h)
         timings["track_crop"] = _ms(t0)
@@ -378,6 +386,16 @@ class TrackingPipeline:
             None if best else next(iter(rejections), None),
             timings,
             tuple(measured),
+        )
+
+    def _between_measurements(self) -> bool:
+        """Whether this frame falls between two measured ones (``measure_every``): not a multiple of
+        the stride, no search due, every live track confirmed."""
+        return (
+            self.measure_every > 1
+            and self.frames % self.measure_every != 0
+            and not self._search_due()
+            and self.poses.tracker.all_confirmed()
         )
 
     def _search_due(self) -> bool:

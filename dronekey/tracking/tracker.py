@@ -212,6 +212,31 @@ class Tracker:
         reports.extend(track.to_track(self.config) for track in self._tracks.values())
         return sorted(reports, key=lambda tr: tr.track_id)
 
+    def advance(self, t_ns: int) -> list[Track]:
+        """Advance every track to ``t_ns`` on a frame that was not measured (the pipeline's
+        measurement stride, ``TrackingPipeline(measure_every=...)``): each is predicted and reported,
+        with neither a hit nor a miss counted, so its lifecycle runs on the measured frames alone.
+        The reports carry no keypoints (``Track.keypoints_px`` None: nothing was measured); the
+        track keeps its last ones for the next measured frame's association.
+
+        Returns
+        -------
+        list of Track
+            Every live track, ordered by track id.
+        """
+        t_ns = self._check_time(t_ns)
+        reports = []
+        for track in self._tracks.values():
+            track.predict_to(t_ns)
+            report = track.to_track(self.config)
+            report.keypoints_px = None
+            reports.append(report)
+        return sorted(reports, key=lambda tr: tr.track_id)
+
+    def all_confirmed(self) -> bool:
+        """Whether a track is live and every live one is confirmed (none tentative or coasting)."""
+        return bool(self._tracks) and all(t.status is TrackStatus.CONFIRMED for t in self._tracks.values())
+
     def predict(self, t_ns: int) -> list[TrackPrediction]:
         """Each live track's pose predicted to ``t_ns`` (no state changes), for the IPPE prior and
         for placing the next crop."""

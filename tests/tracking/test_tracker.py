@@ -184,6 +184,37 @@ def test_track_is_confirmed_after_enough_hits_and_survives_a_10_frame_gap_by_coa
     assert tracker.track_ids == [1]
 
 
+def test_advance_predicts_and_publishes_a_track_without_a_hit_or_a_miss():
+    """The frames between measured ones (the pipeline's stride): a confirmed track is predicted at
+    constant velocity and stays confirmed, without keypoints in its report; its lifecycle counts the
+    measured frames alone, so a run of advances never wears out its coast."""
+    tracker = Tracker(TrackerConfig(confirm_hits=3, confirm_window=5, max_coast_s=1.0))
+    velocity = np.array([0.3, 0.0, 0.0])
+
+    def at(k):
+        return measurement(seen_from_below(10.0), np.array([0.0, 0.0, 4.0]) + velocity * k / FPS)
+
+    for k in range(5):
+        tracker.update(t_ns(k), [at(k)], keypoints_px=[np.zeros((4, 2))])
+    assert tracker.all_confirmed()
+    for k in range(5, 35):  # one second measured on every other frame
+        if k % 2:
+            (track,) = tracker.advance(t_ns(k))
+            assert track.keypoints_px is None
+            np.testing.assert_allclose(track.position_m, at(k).t, atol=0.01)
+        else:
+            (track,) = tracker.update(t_ns(k), [at(k)], keypoints_px=[np.zeros((4, 2))])
+            assert track.keypoints_px is not None
+        assert track.status is TrackStatus.CONFIRMED and track.t_ns == t_ns(k)
+    assert track.hits == 5 + 15
+    assert tracker.all_confirmed()
+    (track,) = tracker.update(t_ns(35), [])
+    assert track.status is TrackStatus.COASTING and not tracker.all_confirmed()
+    with pytest.raises(ValueError, match="earlier than the previous update"):
+        tracker.advance(t_ns(34))
+    assert not Tracker().all_confirmed()  # no track at all
+
+
 def test_coasting_track_is_reported_lost_once_after_max_coast_s():
     tracker = Tracker(TrackerConfig(max_coast_s=0.3))
     for k in range(5):
