@@ -90,6 +90,7 @@ def default_pipeline_factory(camera: CameraModel, config: DaemonConfig) -> Pipel
         search_every=t.search_every,
         search_more_every=t.search_more_every,
         wide_look_every=t.wide_look_every,
+        measure_every=t.measure_every,
         max_search_candidates=t.max_search_candidates,
     )
 

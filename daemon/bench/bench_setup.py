@@ -24,6 +24,7 @@ class BenchSetup:
     mirror_average : False turns ``model.mirror_average`` off (each crop once, not with its mirror:
         what the averaging costs on a box, measured).
     front_back_path : another front/back classifier (``model.front_back_path``): what it costs.
+    measure_every : overrides ``tracking.measure_every`` (the measurement stride) when set.
     """
 
     source: Path
@@ -34,6 +35,7 @@ class BenchSetup:
     front_back: bool = True
     mirror_average: bool = True
     front_back_path: Path | None = None
+    measure_every: int | None = None
 
     def check(self) -> None:
         """Raise ``BenchError`` naming the first missing input file."""
@@ -70,6 +72,7 @@ class BenchSetup:
             "source.decode_threads": (self.decode_threads, "--decode-threads"),
             "model.threads": (self.model_threads, "--model-threads"),
             "model.front_back_path": (self.front_back_path, "--front-back"),
+            "tracking.measure_every": (self.measure_every, "--measure-every"),
         }
         overrides.update(
             {key: (str(v) if isinstance(v, Path) else v, flag) for key, (v, flag) in optional.items() if v}

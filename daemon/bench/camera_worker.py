@@ -89,6 +89,7 @@ def main(argv: list[str] | None = None) -> int:
         args.get("front_back", True),
         args.get("mirror_average", True),
         Path(args["front_back_path"]) if args.get("front_back_path") else None,
+        args.get("measure_every"),
     )
     try:
         report = run_camera(setup, args["camera"], args["frames"], args["warmup"], args["clip_fps"])

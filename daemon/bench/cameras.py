@@ -53,6 +53,7 @@ def _worker_command(
         "front_back": setup.front_back,
         "mirror_average": setup.mirror_average,
         "front_back_path": str(setup.front_back_path) if setup.front_back_path else None,
+        "measure_every": setup.measure_every,
         "camera": camera_id,
         "frames": frames,
         "warmup": warmup,

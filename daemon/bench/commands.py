@@ -62,6 +62,7 @@ def _setup(args: argparse.Namespace) -> BenchSetup:
         not args.no_front_back,
         not args.no_mirror_average,
         args.front_back,
+        args.measure_every,
     )
 
 
@@ -159,6 +160,14 @@ def _common_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="run each crop once, not also mirrored (model.mirror_average false), to measure what "
         "the averaging costs",
+    )
+    parser.add_argument(
+        "--measure-every",
+        type=positive_int,
+        default=None,
+        metavar="N",
+        help="measure confirmed drones on every N-th frame only, the tracks predicted between "
+        "(tracking.measure_every; default: the daemon's, 1)",
     )
 
 

@@ -173,6 +173,7 @@ def run_pipeline_bench(
             "model_threads": keypoints.threads,
             "front_back": str(keypoints.heading_model.path) if keypoints.heading_model else None,
             "mirror_average": keypoints.mirror_average,
+            "measure_every": flat.pipeline.measure_every,
             "cpus": psutil.cpu_count(),
             "warmup_frames": warmup,
             "modes": dict(flat.modes),

@@ -32,6 +32,15 @@ class TrackingConfig(Section):
         "(presence below 0.999) reads its drone again in a crop twice as large, so that a crop cut too "
         "small from a range read too far cannot clip the drone (1: any frame; 0: never)",
     )
+    measure_every: int = Field(
+        1,
+        ge=1,
+        le=100,
+        description="the measurement stride: while every live track is confirmed and no search is due, "
+        "the drones are measured on every this-many-th frame only and the tracks predicted and published "
+        "on the frames between (1: every frame, as shipped; 2 halves the network's work on a tracked "
+        "drone, for several cameras on one box, at the accuracy docs/performance.md gives)",
+    )
     max_search_candidates: int = Field(
         2, ge=0, le=16, description="crops a search for more drones may check (0: no such search)"
     )

@@ -90,13 +90,14 @@ def test_pipeline_thread_overrides_reach_the_daemon(assets):
     result = bench(
         "pipeline", *common(assets), "--frames", "10", "--latency-frames", "6", "--warmup", "2",
         "--decode-threads", "2", "--model-threads", "2", "--no-front-back", "--no-mirror-average",
-        "--json",
+        "--measure-every", "2", "--json",
     )  # fmt: skip
     assert result.returncode == 0, result.stderr
     details = json.loads(result.stdout)["details"]
     assert details["decode_threads"] == 2 and details["model_threads"] == 2
     assert details["front_back"] is None  # --no-front-back: the classifier's cost can be measured
     assert details["mirror_average"] is False  # and the mirror averaging's
+    assert details["measure_every"] == 2  # and the measurement stride's gain
 
 
 def test_pipeline_runs_another_front_back_classifier(assets):

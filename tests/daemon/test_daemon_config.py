@@ -375,7 +375,7 @@ def test_the_tracking_section_reaches_the_pipeline(write_config):
     cfg = write_config(
         "source: {uri: sim://seq13}\n"
         "tracking: {max_tracks: 1, search_more_every: 12, search_every: 0, confirm_min_change: 0,"
-        " confirm_drone_p: 0.7, wide_look_every: 0, heading_full_spread_px: 43.5}\n"
+        " confirm_drone_p: 0.7, wide_look_every: 0, heading_full_spread_px: 43.5, measure_every: 2}\n"
     )
     config = load_config(cfg, {})
     pipeline = default_pipeline_factory(CameraModel.from_fov(1920, 1080, 70), config)
@@ -385,6 +385,7 @@ def test_the_tracking_section_reaches_the_pipeline(write_config):
     assert pipeline.poses.tracker.config.heading_full_spread_px == 43.5
     assert (pipeline.search_more_every, pipeline.search_every, pipeline.max_search_candidates) == (12, 0, 2)
     assert pipeline.wide_look_every == 0
+    assert pipeline.measure_every == 2
 
 
 def test_the_model_section_chooses_the_shipped_front_back_classifier(write_config):
