@@ -217,6 +217,8 @@ def _cmd_robustness(args: argparse.Namespace) -> int:
     if not 0 <= args.heading_full_spread < math.inf:
         spread = args.heading_full_spread
         raise _UsageError(f"--heading-full-spread must be a finite number >= 0, got {spread}")
+    if args.measure_every < 1:
+        raise _UsageError(f"--measure-every must be >= 1, got {args.measure_every}")
     if args.seeds is not None:
         negative = [s for s in args.seeds if s < 0]
         if negative:
@@ -256,6 +258,7 @@ def _cmd_robustness(args: argparse.Namespace) -> int:
                 confirm_max_outliers=args.confirm_max_outliers,
                 heading_full_spread_px=args.heading_full_spread,
             ),
+            measure_every=args.measure_every,
         )
     except ImportError as exc:  # --background photos without scikit-image / scikit-learn
         raise _UsageError(str(exc)) from None
@@ -443,6 +446,16 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="PX",
         help="measure a heading confidence bounded by the drone's size: none below hubs PX / 2 apart, "
         "sure allowed from PX (TrackerConfig.heading_full_spread_px, 0 as shipped)",
+    )
+    r.add_argument(
+        "--measure-every",
+        type=int,
+        default=1,
+        metavar="N",
+        help="measure a measurement stride: while every live track is confirmed, the drones are "
+        "measured on every N-th frame only and the tracks predicted between (TrackingPipeline's "
+        "measure_every, the daemon's tracking.measure_every; 1 as shipped); AP^kp then counts the "
+        "measured frames",
     )
     r.add_argument(
         "--cue-free",

@@ -487,6 +487,8 @@ SETTINGS_UNDER_MEASURE = [
      "0", "--acquire-recut must be > 0, got 0.0"),
     ("--heading-full-spread", "43.5", "heading_full_spread_px", 43.5, "sure from hubs 43.5 px",
      "-1", "--heading-full-spread must be a finite number >= 0, got -1.0"),
+    ("--measure-every", "2", "measure_every", 2, "confirmed drones measured every 2 frames",
+     "0", "--measure-every must be >= 1, got 0"),
 ]  # fmt: skip
 
 
@@ -496,7 +498,7 @@ def test_cli_pipeline_settings_under_measure_are_recorded_and_named_in_the_table
     assert main([*argv, "--json"]) == 0
     settings = json.loads(capsys.readouterr().out)["settings"]
     assert settings["acquire_recut"] is None and settings["confirm_max_outliers"] == 0  # as shipped
-    assert settings["heading_full_spread_px"] == 0.0
+    assert settings["heading_full_spread_px"] == 0.0 and settings["measure_every"] == 1
     for flag, value, key, recorded, words, bad, error in SETTINGS_UNDER_MEASURE:
         assert main([*argv, flag, value, "--json"]) == 0
         assert json.loads(capsys.readouterr().out)["settings"][key] == recorded

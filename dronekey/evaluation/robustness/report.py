@@ -133,6 +133,11 @@ class RobustnessReport:
                 if st.get("heading_full_spread_px")
                 else ""
             )
+            + (
+                f", confirmed drones measured every {st['measure_every']} frames (AP^kp on those)"
+                if st.get("measure_every", 1) > 1
+                else ""
+            )
             + (", every drone cue-free (no front/back cue)" if st.get("cue_free") else ""),
         ]
         if not st.get("model_has_heading_head", True):

@@ -68,6 +68,7 @@ def run_robustness(
     cue_free: bool = False,
     localizer: LocalizerConfig | None = None,
     tracker: TrackerConfig | None = None,
+    measure_every: int = 1,
 ) -> RobustnessReport:
     """Render the matrix (reusing what ``out_dir`` holds), run the pipeline and score it.
 
@@ -157,6 +158,7 @@ def run_robustness(
         "acquire_recut": (localizer or LocalizerConfig()).acquire_recut,
         "confirm_max_outliers": (tracker or TrackerConfig()).confirm_max_outliers,
         "heading_full_spread_px": (tracker or TrackerConfig()).heading_full_spread_px,
+        "measure_every": int(measure_every),
         "match_gate": {"min_m": MATCH_GATE_M, "range_fraction": MATCH_GATE_FRACTION},
         "wrong_heading_deg": WRONG_HEADING_DEG,
         "confident_heading": CONFIDENT_HEADING,
@@ -186,6 +188,7 @@ def run_robustness(
                 dither=noise,
                 localizer=localizer,
                 tracker=tracker,
+                measure_every=measure_every,
             )
             report.sequences.append(EvaluatedSequence(r, scores))
     settings["render_s"] = round(t1 - t0, 1)

@@ -205,9 +205,10 @@ class SequenceScores:
     wrong_heading : (N,) the drone's track is more than ``WRONG_HEADING_DEG`` off (geodesic angle).
     sure_heading : (N,) the drone's track has a ``heading_confidence`` >= ``CONFIDENT_HEADING``
         (``confident_wrong_heading`` and ``confident_right_heading`` follow from it).
-    kp_pred, kp_true : (N, 4, 2) the pipeline's best detection and the annotated keypoints, pixels.
-    area : (N,) annotated box area, pixels^2. score : (N,) presence of the detection (0 without).
-    has_pred : (N,) a detection exists.
+    kp_pred, kp_true : (M, 4, 2) the pipeline's best detection and the annotated keypoints, pixels,
+        over the M <= N frames it measured (every frame unless ``measure_every`` > 1).
+    area : (M,) annotated box area, pixels^2. score : (M,) presence of the detection (0 without).
+    has_pred : (M,) a detection exists.
     missed_wrong_range, missed_unconfirmed, missed_unseen : (N,) why a frame without the drone's
         track missed it (the module's notes); with ``detected`` exactly one of the four holds.
     axis_exchanged : (N,) ``axis_exchanged`` of the pipeline's best detection: 1.0 where its
@@ -272,6 +273,7 @@ def score_sequence(
     dither: FrameDither | None = None,
     localizer: LocalizerConfig | None = None,
     tracker: TrackerConfig | None = None,
+    measure_every: int = 1,
 ) -> SequenceScores:
     """Run a fresh ``TrackingPipeline`` over a loaded sequence and score every frame.
 
@@ -289,6 +291,10 @@ def score_sequence(
         is drawn once): the figures' noise floor. None: the frames as decoded.
     localizer, tracker : the pipeline's configs (a setting measured before it is shipped); None: the
         defaults, as shipped.
+    measure_every : the pipeline's measurement stride (1, every frame, as shipped). The frames
+        between measured ones (``PipelineOutput.mode`` "predicted") score their tracks like any
+        other frame, but hold no detection to score: they are left out of AP^kp, and the front/back
+        and axis verdicts are NaN there.
 
     Returns
     -------
@@ -306,6 +312,7 @@ def score_sequence(
         verifier=verifier,
         localizer=localizer,
         tracker=tracker,
+        measure_every=measure_every,
     )
     rows: dict[str, list] = {
         k: []
@@ -388,6 +395,10 @@ def score_sequence(
             rows["R_track"].append(np.full((3, 3), np.nan))
             rows["t_track"].append(np.full(3, np.nan))
         det = out.detection
+        if out.mode == "predicted":  # nothing was looked for: no detection to score
+            rows["front_back"].append(np.nan)
+            rows["axis"].append(np.nan)
+            continue
         rows["kp_true"].append(ann.keypoints_px)
         rows["area"].append(ann.area)
         rows["has_pred"].append(det is not None)
