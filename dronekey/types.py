@@ -160,7 +160,8 @@ class Track:
     position_cov : (3, 3) covariance of position_m, m^2.
     quaternion_wxyz : (4,) body -> camera rotation, w >= 0.
     rotation_std_rad : (3,) standard deviation of the orientation (rotation vector components).
-    keypoints_px : (4, 2) last measured keypoints in full-frame pixels, or None while coasting.
+    keypoints_px : (4, 2) last measured keypoints in full-frame pixels, or None while coasting and on
+        a frame between measured ones (the pipeline's measurement stride, nothing measured there).
     score : presence score of the last measurement in [0, 1].
     reprojection_px : RMS reprojection error of the last measurement, pixels.
     heading_confidence : how sure the track is that its front is the drone's front and not the back
