@@ -264,6 +264,15 @@ class TrackingPipeline:
         from a range read too far and clips the drone), staggered over the tracks; a track whose
         wide look was taken may look again the next frame. 1 (every frame) costs nothing where the
         network is sure of its crops (docs/evaluation.md, twenty-third session); 0 never looks wide.
+    measure_every : the measurement stride: while every live track is confirmed, its last hit sure
+        of its crop (presence at least ``LocalizerConfig.wide_look_presence``) and no search is due,
+        the drones are measured (crops, network, classifiers, PnP) on every ``measure_every``-th
+        frame only, and on the frames between the tracks are predicted to the frame's time and
+        published (``Tracker.advance``; ``PipelineOutput.mode`` "predicted"). A tentative,
+        coasting or doubted track, or a search, is measured on every frame. 1 (the default)
+        measures every frame; 2 halves the network's work on a steadily tracked drone, for several
+        cameras on one box, at an accuracy cost (docs/evaluation.md, docs/performance.md,
+        twenty-eighth session).
     """
 
     def __init__(
@@ -390,12 +399,14 @@ class TrackingPipeline:
 
     def _between_measurements(self) -> bool:
         """Whether this frame falls between two measured ones (``measure_every``): not a multiple of
-        the stride, no search due, every live track confirmed."""
+        the stride, no search due, every live track confirmed and its last hit sure of its crop
+        (presence at least ``LocalizerConfig.wide_look_presence``: a crop the network doubts may
+        be cut from a range gone wrong, and is measured again on the next frame)."""
         return (
             self.measure_every > 1
             and self.frames % self.measure_every != 0
             and not self._search_due()
-            and self.poses.tracker.all_confirmed()
+            and self.poses.tracker.all_confirmed(self.localizer.config.wide_look_presence)
         )
 
     def _search_due(self) -> bool:

@@ -233,9 +233,12 @@ class Tracker:
             reports.append(report)
         return sorted(reports, key=lambda tr: tr.track_id)
 
-    def all_confirmed(self) -> bool:
-        """Whether a track is live and every live one is confirmed (none tentative or coasting)."""
-        return bool(self._tracks) and all(t.status is TrackStatus.CONFIRMED for t in self._tracks.values())
+    def all_confirmed(self, min_score: float = 0.0) -> bool:
+        """Whether a track is live and every live one is confirmed (none tentative or coasting),
+        its last hit's presence score not below ``min_score`` (a score that is unknown, NaN, is not)."""
+        return bool(self._tracks) and all(
+            t.status is TrackStatus.CONFIRMED and not t.score < min_score for t in self._tracks.values()
+        )
 
     def predict(self, t_ns: int) -> list[TrackPrediction]:
         """Each live track's pose predicted to ``t_ns`` (no state changes), for the IPPE prior and

@@ -213,6 +213,10 @@ def test_advance_predicts_and_publishes_a_track_without_a_hit_or_a_miss():
     with pytest.raises(ValueError, match="earlier than the previous update"):
         tracker.advance(t_ns(34))
     assert not Tracker().all_confirmed()  # no track at all
+    for score, sure in ((0.9995, True), (0.95, False)):  # the stride's guard: a crop the network doubts
+        one = Tracker(TrackerConfig(confirm_hits=1, confirm_window=1))
+        one.update(0, [at(0)], scores=[score])
+        assert one.all_confirmed() and one.all_confirmed(0.999) is sure
 
 
 def test_coasting_track_is_reported_lost_once_after_max_coast_s():
