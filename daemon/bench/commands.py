@@ -166,7 +166,7 @@ def _common_arguments(parser: argparse.ArgumentParser) -> None:
         type=positive_int,
         default=None,
         metavar="N",
-        help="measure confirmed drones on every N-th frame only, the tracks predicted between "
+        help="measure steadily tracked drones on every N-th frame only, the tracks predicted between "
         "(tracking.measure_every; default: the daemon's, 1)",
     )
 
