@@ -57,7 +57,7 @@ def run_camera(setup: BenchSetup, camera_id: str, frames: int, warmup: int, clip
         config = config.model_copy(update={"camera": config.camera.model_copy(update={"id": camera_id})})
         app = run_daemon(config, meter, signals)
     n, wall_s, cpu_s = meter.window()
-    p50, p99, _ = worst_latency(app, warmup)
+    p50, p99, _ = worst_latency(app, meter)
     return {
         "camera": camera_id,
         "frames": n,

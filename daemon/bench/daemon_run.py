@@ -85,6 +85,7 @@ def run_daemon(config: DaemonConfig, meter: Meter, signals: SignalMonitor) -> Da
     app = DaemonApp(
         config, signals=signals, notifier=SystemdNotifier(environ={}), pipeline_factory=meter.factory
     )
+    meter.app = app
     try:
         code = app.run()
     except DaemonError as exc:

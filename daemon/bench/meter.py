@@ -16,6 +16,7 @@ from tqdm import tqdm
 
 from dronekey.daemon.app import default_pipeline_factory
 from dronekey.daemon.bench.errors import BenchError
+from dronekey.daemon.sinks.latency_histogram import LatencyHistogram
 
 __all__ = ["MIB", "Meter", "Stamp", "growth_percent", "peak_rss_mb", "trend_percent"]
 
@@ -68,6 +69,9 @@ class Meter:
     the first minutes' one-off allocations). With ``seconds``, the end is stamped at the first frame
     that many seconds after the start if ``frames`` have not come by then (a camera that cannot
     keep up with its clip), and ``stop`` (the daemon's stop event) is set: the run lasts its time.
+
+    ``app`` (set by ``run_daemon``) is the daemon whose outputs' latency histograms are copied at
+    the ``start`` stamp (``latency_start``), so that a run's percentiles leave the warm-up out.
     """
 
     def __init__(
@@ -94,6 +98,8 @@ class Meter:
         self._seconds = seconds
         self._stop = stop
         self.pipeline = None
+        self.app = None  # the DaemonApp this meter runs in (run_daemon sets it)
+        self.latency_start: dict[str, LatencyHistogram] = {}  # each output's, at the start stamp
         self.pipeline_cpu_s = 0.0  # CPU time in process() (its thread and helpers), after warm-up
         self._rss = rss
         self._process = psutil.Process()
@@ -118,6 +124,8 @@ class Meter:
         self.modes[output.mode] += 1
         if self.frames == self.warmup:
             self.start = self._stamp()
+            outputs = self.app.outputs if self.app is not None else {}
+            self.latency_start = {name: w.stats.latency_histogram.copy() for name, w in outputs.items()}
         if self.frames == self._settle:
             self.settled = self._stamp()
             self.rss_stamps.append(self.settled)

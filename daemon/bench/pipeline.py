@@ -27,7 +27,6 @@ import math
 import sys
 import time
 
-import numpy as np
 import psutil
 from tqdm import tqdm
 
@@ -41,10 +40,9 @@ from dronekey.daemon.bench.meter import Meter, peak_rss_mb
 from dronekey.daemon.signals import SignalMonitor
 from dronekey.daemon.sources import FrameReader, SourceOpenError, make_reader
 
-__all__ = ["MAX_LATENCY_FRAMES", "measure_decode", "run_pipeline_bench", "worst_latency"]
+__all__ = ["measure_decode", "run_pipeline_bench", "worst_latency"]
 
 LOG = logging.getLogger(__name__)
-MAX_LATENCY_FRAMES = 2000  # SinkStats keeps the last 2048 latencies
 
 
 def measure_decode(
@@ -80,19 +78,16 @@ def measure_decode(
         reader.close()
 
 
-def worst_latency(app: DaemonApp, warmup: int) -> tuple[float, float, dict]:
-    """Worst p50 and p99 over the outputs (decoded -> published, after ``warmup`` updates), and per output."""
+def worst_latency(app: DaemonApp, meter: Meter) -> tuple[float, float, dict]:
+    """Worst p50 and p99 over the outputs (decoded -> published, of every update after ``meter``'s
+    start stamp: the whole measured window, ``SinkStats.latency_histogram``), and per output."""
     per_sink = {}
     for name, worker in app.outputs.items():
         stats = worker.stats
-        values = np.fromiter(stats.latencies_ms, dtype=np.float64)
-        keep = max(0, stats.published - warmup)
-        values = values[len(values) - min(keep, len(values)) :]
-        p50, p99 = (
-            (float(np.percentile(values, 50)), float(np.percentile(values, 99)))
-            if values.size
-            else (math.nan,) * 2
-        )
+        window = stats.latency_histogram
+        if name in meter.latency_start:
+            window = window.since(meter.latency_start[name])
+        p50, p99 = window.percentile(50), window.percentile(99)
         per_sink[name] = {
             "published": stats.published,
             "dropped": stats.dropped,
@@ -122,8 +117,6 @@ def run_pipeline_bench(
     for name, n in (("--frames", frames), ("--latency-frames", latency_frames)):
         if n <= warmup:
             raise BenchError(f"{name} ({n}) must exceed --warmup ({warmup})")
-    if latency_frames > MAX_LATENCY_FRAMES:
-        raise BenchError(f"--latency-frames must be <= {MAX_LATENCY_FRAMES}, got {latency_frames}")
 
     LOG.info("decode pass: %d frames", frames)
     signals = signals or signal_monitor()
@@ -143,7 +136,7 @@ def run_pipeline_bench(
     paced = Meter(latency_frames, warmup, "paced")
     with local_endpoints() as outputs:
         paced_app = run_daemon(setup.config(latency_frames, outputs, realtime=True), paced, signals)
-    p50, p99, per_sink = worst_latency(paced_app, warmup)
+    p50, p99, per_sink = worst_latency(paced_app, paced)
     pn, pwall_s, pcpu_s = paced.window()
 
     keypoints = flat.pipeline.model

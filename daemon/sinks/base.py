@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from dronekey.daemon.sinks.latency_histogram import LatencyHistogram
 from dronekey.frame_image import FrameImage, as_frame_image
 from dronekey.types import KeypointDetection, Track
 
@@ -102,13 +103,15 @@ class Sink(ABC):
 
 @dataclass
 class SinkStats:
-    """Counters of one worker, read by the status publisher."""
+    """Counters of one worker, read by the status publisher: the recent latencies (ms, the last
+    2,048, for the status messages) and a histogram of every one (for benchmarks of a whole run)."""
 
     published: int = 0
     dropped: int = 0
     errors: int = 0
     last_error: str | None = None
     latencies_ms: collections.deque = field(default_factory=lambda: collections.deque(maxlen=2048))
+    latency_histogram: LatencyHistogram = field(default_factory=LatencyHistogram)  # the whole run's
 
     def latency_percentiles(self) -> tuple[float, float]:
         """(p50, p99) of frame-decoded-to-published latency in ms over the recent window."""
@@ -178,6 +181,7 @@ class SinkWorker:
                     self.stats.published += 1
                     lat = (time.monotonic_ns() - payload.t_decoded_mono_ns) / 1e6
                     self.stats.latencies_ms.append(lat)
+                    self.stats.latency_histogram.add(lat)
                 else:
                     self.sink.handle_status(payload)
             except Exception as exc:  # a sink failure must never take the daemon down
