@@ -14,6 +14,7 @@ from typing import Any
 import dronekey
 from dronekey.daemon.errors import EXIT_CODE_HELP, DaemonError, ExitCode, UsageError
 from dronekey.daemon.logs import detect_log_mode, setup_logging
+from dronekey.daemon.malloc_arenas import limit_malloc_arenas
 from dronekey.daemon.sources import SIM_SOURCES
 
 __all__ = ["build_parser", "main"]
@@ -236,6 +237,7 @@ def _validate(config) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``dronekey-daemon``; returns the exit code (see ``errors.ExitCode``)."""
+    limit_malloc_arenas()  # before any thread allocates: a hundred MiB less a camera
     args = build_parser().parse_args(argv)
     mode = detect_log_mode()
     status_line = setup_logging("INFO", mode)

@@ -15,7 +15,9 @@ endpoints) and stops after ``frames``; the worker prints one JSON line with this
   into the measured window (at its start for a run shorter than twice that), and
   ``rss_growth_percent`` from there to the end (a soak's figure), and ``rss_trend_percent`` the
   same along the line fitted to the resident set of every 100th frame from there to the end (not
-  decided by the allocator's swing at two single samples).
+  decided by the allocator's swing at two single samples);
+- ``malloc_arenas``: the cap on glibc's malloc arenas in force, as the daemon's entry point sets it
+  (``dronekey.daemon.malloc_arenas``; null where the C library is not glibc).
 
 The measured window ends after its frames or after its seconds, whichever comes first: a camera that
 falls behind its clip is stopped at the run's time (a 1-hour soak of cameras at 19 FPS against a
@@ -34,6 +36,7 @@ from dronekey.daemon.bench.daemon_run import local_endpoints, run_daemon, signal
 from dronekey.daemon.bench.errors import BenchError
 from dronekey.daemon.bench.meter import Meter, growth_percent, trend_percent
 from dronekey.daemon.bench.pipeline import worst_latency
+from dronekey.daemon.malloc_arenas import limit_malloc_arenas
 from dronekey.daemon.messages import jsonable
 from dronekey.daemon.sources.opencv_readers import quiet_native_logs
 
@@ -77,6 +80,7 @@ def run_camera(setup: BenchSetup, camera_id: str, frames: int, warmup: int, clip
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the child process; prints one JSON line, or one error line (exit 1)."""
+    arenas = limit_malloc_arenas()  # as the daemon's entry point does
     args = json.loads((argv or sys.argv[1:])[0])
     logging.basicConfig(level=logging.WARNING, stream=sys.stderr)
     quiet_native_logs(verbose=False)
@@ -96,6 +100,7 @@ def main(argv: list[str] | None = None) -> int:
     except BenchError as exc:
         print(f"{args['camera']}: {exc}", file=sys.stderr)
         return 1
+    report["malloc_arenas"] = arenas
     print(json.dumps(report), flush=True)
     return 0
 

@@ -19,6 +19,7 @@ from dronekey.daemon.bench.daemon_run import signal_monitor
 from dronekey.daemon.bench.errors import BenchError, BenchInterruptedError
 from dronekey.daemon.bench.pipeline import run_pipeline_bench
 from dronekey.daemon.bench.soak import run_soak
+from dronekey.daemon.malloc_arenas import limit_malloc_arenas
 from dronekey.daemon.sources.opencv_readers import quiet_native_logs
 
 __all__ = ["add_cameras_command", "add_pipeline_command", "add_soak_command"]
@@ -68,7 +69,9 @@ def _setup(args: argparse.Namespace) -> BenchSetup:
 
 def _run_bench(name: str, run: Callable) -> tuple[dict | None, int]:
     """``run(signals)`` with FFmpeg's and OpenCV's own messages off stderr (as in the daemon) and
-    SIGINT / SIGTERM watched: (its report, 0), or (None, exit status) after one error line."""
+    SIGINT / SIGTERM watched: (its report, 0), or (None, exit status) after one error line. Malloc
+    arenas are capped as the daemon's own entry point caps them (``daemon.malloc_arenas``)."""
+    limit_malloc_arenas()
     quiet_native_logs(verbose=False)
     signals = signal_monitor(install=True)
     try:
