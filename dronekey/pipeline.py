@@ -81,8 +81,7 @@ class PipelineOutput:
     measurement : that raw PnP pose, or None.
     mode : "track" (``detection`` came from a track's crop), "acquire" (from the whole-frame
         search), "predicted" (a frame between two measured ones, ``measure_every``: the tracks
-        predicted, none of them detected; a search moved to this frame may have found new drones,
-        in ``measured``) or "none".
+        predicted, nothing detected) or "none".
     rejection : why the best candidate gave no pose, when nothing did.
     timings_ms : wall time of each stage.
     measured : every detection that became a pose this frame, best first.
@@ -205,9 +204,8 @@ class PoseTracker:
             return self.tracker.update(t_ns, [])
         return self.track_all(t_ns, [Measured(detection, measurement)])
 
-    def track_all(self, t_ns: int, measured: list[Measured], count_misses: bool = True) -> list[Track]:
-        """Advance the tracker to ``t_ns`` with every pose of this frame (``count_misses``: see
-        ``Tracker.update``)."""
+    def track_all(self, t_ns: int, measured: list[Measured]) -> list[Track]:
+        """Advance the tracker to ``t_ns`` with every pose of this frame."""
         return self.tracker.update(
             t_ns,
             [m.measurement for m in measured],
@@ -216,26 +214,7 @@ class PoseTracker:
             [m.detection.heading_p for m in measured],
             [m.change for m in measured],
             [m.detection.drone_p for m in measured],
-            count_misses=count_misses,
         )
-
-
-@dataclass(frozen=True, slots=True)
-class _Searches:
-    """The periodic searches a frame runs: the whole-frame one (``search_every``) and the one for
-    more drones (``search_more_every``)."""
-
-    full: bool = False
-    more: bool = False
-
-    def __bool__(self) -> bool:
-        return self.full or self.more
-
-    def __or__(self, other: _Searches) -> _Searches:
-        return _Searches(self.full or other.full, self.more or other.more)
-
-
-_NO_SEARCH = _Searches()
 
 
 class TrackingPipeline:
@@ -285,17 +264,15 @@ class TrackingPipeline:
         from a range read too far and clips the drone), staggered over the tracks; a track whose
         wide look was taken may look again the next frame. 1 (every frame) costs nothing where the
         network is sure of its crops (docs/evaluation.md, twenty-third session); 0 never looks wide.
-    measure_every : the measurement stride: while every live track is confirmed and its last hit
-        sure of its crop (presence at least ``LocalizerConfig.wide_look_presence``), the drones are
-        measured (crops, network, classifiers, PnP) on every ``measure_every``-th frame only; on the
-        frames between, the tracks are predicted to the frame's time and published
-        (``Tracker.advance``; ``PipelineOutput.mode`` "predicted"), and a periodic search due on a
-        measured frame runs on the next one instead, outside the tracks' predicted boxes, so that
-        no frame pays for both the crops and a search (the slowest frames of three cameras on one
-        box). A tentative, coasting or doubted track is measured on every frame. 1 (the default)
+    measure_every : the measurement stride: while every live track is confirmed, its last hit sure
+        of its crop (presence at least ``LocalizerConfig.wide_look_presence``) and no search is due,
+        the drones are measured (crops, network, classifiers, PnP) on every ``measure_every``-th
+        frame only, and on the frames between the tracks are predicted to the frame's time and
+        published (``Tracker.advance``; ``PipelineOutput.mode`` "predicted"). A tentative,
+        coasting or doubted track, or a search, is measured on every frame. 1 (the default)
         measures every frame; 2 halves the network's work on a steadily tracked drone, for several
         cameras on one box, at an accuracy cost (docs/evaluation.md, docs/performance.md,
-        twenty-eighth and twenty-ninth sessions).
+        twenty-eighth session).
     """
 
     def __init__(
@@ -351,7 +328,6 @@ class TrackingPipeline:
         self.helper_cpu_s = 0.0  # CPU seconds spent on helper threads (the early saliency passes)
         self._previous_image: FrameImage | None = None
         self._widened: set[int] = set()  # tracks whose wide look was taken last frame
-        self._deferred = _NO_SEARCH  # searches moved from a measured frame to the next (the stride)
 
     def info(self) -> dict:
         """Camera, model and drone, for status messages and the Zenoh ``info`` queryable."""
@@ -379,27 +355,33 @@ class TrackingPipeline:
         self.frames += 1
         timings: dict[str, float] = {}
         t0 = time.perf_counter()
-        searches = self._searches_due() | self._deferred
-        self._deferred = _NO_SEARCH
-        if self._steady():
-            if self.frames % self.measure_every:  # between two measured frames: predicted
-                return self._predicted(frame, searches, t0)
-            self._deferred, searches = searches, _NO_SEARCH  # to the next frame, which is predicted
-        early = _Background(self.localizer.saliency, frame.image) if searches else None
+        if self._between_measurements():
+            tracks = self.poses.tracker.advance(frame.t_ns)
+            self._previous_image = frame.image
+            timings["total"] = _ms(t0)
+            return PipelineOutput(tuple(tracks), None, None, "predicted", None, timings)
+        early = _Background(self.localizer.saliency, frame.image) if self._search_due() else None
         measured, regions, rejections, state = self._track_crops(frame, w, h)
         timings["track_crop"] = _ms(t0)
         saliency = early.result() if early is not None else None
         self.helper_cpu_s += early.cpu_s if early is not None else 0.0
-        budget, more_only = self._search_budget(state, searches)
+        budget, more_only = self._search_budget(state)
         exclude = regions[1] if more_only else regions[0]
         if budget:
             t1 = time.perf_counter()
-            found, missed = self._search(frame.image, exclude, budget, saliency)
-            measured += found
-            rejections += missed
+            for det in self.localizer.acquire_all(frame.image, exclude, budget, saliency):
+                measurement, rejection = self.poses.measure_detection(det, None)
+                if measurement is not None:
+                    measured.append(Measured(det, measurement))
+                else:
+                    rejections.append(rejection)
             timings["acquire"] = _ms(t1)
         t2 = time.perf_counter()
-        measured = self._with_change(frame.image, measured)
+        measured = [
+            replace(m, change=frame_change(frame.image, self._previous_image, m.detection.keypoints_px))
+            for m in measured
+        ]
+        self._previous_image = frame.image  # kept, not copied: a frame's image is read-only
         tracks = self.poses.track_all(frame.t_ns, measured)
         timings["track"] = _ms(t2)
         timings["total"] = _ms(t0)
@@ -415,76 +397,36 @@ class TrackingPipeline:
             tuple(measured),
         )
 
-    def _steady(self) -> bool:
-        """Whether the measurement stride applies (``measure_every`` above 1): every live track
-        confirmed and its last hit sure of its crop (presence at least
-        ``LocalizerConfig.wide_look_presence``: a crop the network doubts may be cut from a range
-        gone wrong, and is measured again on the next frame)."""
-        return self.measure_every > 1 and self.poses.tracker.all_confirmed(
-            self.localizer.config.wide_look_presence
+    def _between_measurements(self) -> bool:
+        """Whether this frame falls between two measured ones (``measure_every``): not a multiple of
+        the stride, no search due, every live track confirmed and its last hit sure of its crop
+        (presence at least ``LocalizerConfig.wide_look_presence``: a crop the network doubts may
+        be cut from a range gone wrong, and is measured again on the next frame)."""
+        return (
+            self.measure_every > 1
+            and self.frames % self.measure_every != 0
+            and not self._search_due()
+            and self.poses.tracker.all_confirmed(self.localizer.config.wide_look_presence)
         )
 
-    def _predicted(self, frame: Frame, searches: _Searches, t0: float) -> PipelineOutput:
-        """A frame between two measured ones (``measure_every``): every track predicted to the
-        frame's time (no hit, no miss), and the searches due run over the frame outside the tracks'
-        predicted boxes, each find a new tentative track."""
-        tracker = self.poses.tracker
-        budget = self._search_budget((len(tracker.track_ids) >= tracker.config.max_tracks, 1), searches)[0]
-        if not budget:
-            tracks = self.poses.tracker.advance(frame.t_ns)
-            self._previous_image = frame.image
-            return PipelineOutput(tuple(tracks), None, None, "predicted", None, {"total": _ms(t0)})
-        boxes = [box_from_pose(self.camera, self.spec, p.R, p.t) for p in self.poses.predictions(frame.t_ns)]
-        found, _ = self._search(frame.image, [b for b in boxes if b is not None], budget)
-        measured = self._with_change(frame.image, found)
-        tracks = self.poses.track_all(frame.t_ns, measured, count_misses=False)
-        timings = {"acquire": _ms(t0), "total": _ms(t0)}
-        return PipelineOutput(tuple(tracks), None, None, "predicted", None, timings, tuple(measured))
+    def _search_due(self) -> bool:
+        """Whether this frame is one of the periodic searches' (``search_every``, or
+        ``search_more_every`` with a budget), known before the track crops: its saliency pass then
+        runs on the other core meanwhile (the swarm clip's slowest frames were search frames, 49-61
+        ms, 7.6 of them the pass). A frame searched because no confirmed track was measured runs
+        the pass after its (cheap) track crops."""
+        periodic = bool(self.search_every) and self.frames % self.search_every == 0
+        more = bool(self.max_search_candidates) and self.frames % self.search_more_every == 0
+        return periodic or more
 
-    def _search(
-        self, image: FrameImage, exclude: list, budget: int, saliency=None
-    ) -> tuple[list[Measured], list[str]]:
-        """The whole-frame search outside ``exclude`` (``Localizer.acquire_all``): its finds that
-        gave a pose, each a hypothesis of its own, and why the others gave none."""
-        measured, rejections = [], []
-        for det in self.localizer.acquire_all(image, exclude, budget, saliency):
-            measurement, rejection = self.poses.measure_detection(det, None)
-            if measurement is not None:
-                measured.append(Measured(det, measurement))
-            else:
-                rejections.append(rejection)
-        return measured, rejections
-
-    def _with_change(self, image: FrameImage, measured: list[Measured]) -> list[Measured]:
-        """``measured`` with how much each one's pixels changed since the previous frame
-        (confirmation evidence); this frame's image becomes the previous one."""
-        measured = [
-            replace(m, change=frame_change(image, self._previous_image, m.detection.keypoints_px))
-            for m in measured
-        ]
-        self._previous_image = image  # kept, not copied: a frame's image is read-only
-        return measured
-
-    def _searches_due(self) -> _Searches:
-        """The periodic searches of this frame (``search_every``, and ``search_more_every`` with a
-        budget), known before the track crops: their saliency pass then runs on the other core
-        meanwhile (the swarm clip's slowest frames were search frames, 49-61 ms, 7.6 of them the
-        pass). A frame searched because no confirmed track was measured runs the pass after its
-        (cheap) track crops."""
-        return _Searches(
-            full=bool(self.search_every) and self.frames % self.search_every == 0,
-            more=bool(self.max_search_candidates) and self.frames % self.search_more_every == 0,
-        )
-
-    def _search_budget(self, state: tuple[bool, int], searches: _Searches) -> tuple[int, bool]:
+    def _search_budget(self, state: tuple[bool, int]) -> tuple[int, bool]:
         """Candidates the search may check this frame (0: no search) and whether it looks for more
         drones only (every live track's region left out), from (whether ``max_tracks`` tracks are
-        confirmed or no track could start, confirmed tracks measured this frame) and the periodic
-        searches due."""
+        confirmed or no track could start, confirmed tracks measured this frame)."""
         full, n_measured = state
-        if n_measured == 0 or searches.full:
+        if n_measured == 0 or (self.search_every and self.frames % self.search_every == 0):
             return self.localizer.config.max_candidates, False
-        if full or not searches.more:
+        if full or self.frames % self.search_more_every:
             return 0, True
         return self.max_search_candidates, True
 

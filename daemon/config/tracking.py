@@ -36,10 +36,9 @@ class TrackingConfig(Section):
         1,
         ge=1,
         le=100,
-        description="the measurement stride: while every live track is confirmed and the network sure of "
-        "its last crop, the drones are measured on every this-many-th frame only and the tracks predicted "
-        "and published on the frames between, where the periodic searches then run (1: every frame, as "
-        "shipped; 2 lets three "
+        description="the measurement stride: while every live track is confirmed, the network sure of its "
+        "last crop and no search due, the drones are measured on every this-many-th frame only and the "
+        "tracks predicted and published on the frames between (1: every frame, as shipped; 2 lets three "
         "cameras share the 2-core box at 30 FPS, at the accuracy cost docs/evaluation.md gives)",
     )
     max_search_candidates: int = Field(

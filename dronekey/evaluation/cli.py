@@ -453,8 +453,7 @@ def build_parser() -> argparse.ArgumentParser:
         default=1,
         metavar="N",
         help="measure a measurement stride: while every live track is confirmed and the network sure of "
-        "its last crop, the drones are measured on every N-th frame only and the tracks predicted between, "
-        "where the periodic searches then run "
+        "its last crop, the drones are measured on every N-th frame only and the tracks predicted between "
         "(TrackingPipeline's "
         "measure_every, the daemon's tracking.measure_every; 1 as shipped); AP^kp then counts the "
         "measured frames",

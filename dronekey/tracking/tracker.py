@@ -128,7 +128,6 @@ class Tracker:
         heading_p: Sequence[float] | None = None,
         changes: Sequence[float] | None = None,
         drone_p: Sequence[float] | None = None,
-        count_misses: bool = True,
     ) -> list[Track]:
         """Advance every track to ``t_ns`` and fold in this frame's measurements.
 
@@ -153,11 +152,6 @@ class Tracker:
             The drone verifier's probability that each measurement is a drone
             (``dronekey.perception.drone_verifier``): confirmation evidence; NaN or absent without
             a verifier.
-        count_misses : bool
-            Whether a live track no measurement was assigned to counts a miss (the default). False
-            on a frame whose measurements cannot be its tracks' (the pipeline's measurement stride
-            searching the frame outside them): such a track is predicted and reported without
-            keypoints, as ``advance`` does, neither hit nor missed.
 
         Returns
         -------
@@ -199,8 +193,6 @@ class Tracker:
         reports: list[Track] = [track.to_track(self.config, TrackStatus.LOST) for track in dropped]
         for track in list(self._tracks.values()):
             if track.track_id not in matched:
-                if not count_misses:
-                    continue
                 self._miss(track)
             if self._is_lost(track):
                 if track.status is TrackStatus.TENTATIVE:
@@ -209,7 +201,6 @@ class Tracker:
                     log.info("track %d lost after %d hits", track.track_id, track.hits)
                 reports.append(track.to_track(self.config, TrackStatus.LOST))
                 del self._tracks[track.track_id]
-        born = set()
         for j in unmatched:
             if len(self._tracks) >= self.config.max_tracks:
                 log.debug("measurement ignored: max_tracks=%d live tracks", self.config.max_tracks)
@@ -217,13 +208,8 @@ class Tracker:
             track = TrackRecord(self._next_id, t_ns, measurements[j], hits[j], keypoints_px[j], self.config)
             track.add_heading_evidence(heading_p[j], 1.0)  # a new track starts from the network's word
             self._tracks[track.track_id] = track
-            born.add(track.track_id)
             self._next_id += 1
-        for track in self._tracks.values():
-            report = track.to_track(self.config)
-            if not count_misses and track.track_id not in matched and track.track_id not in born:
-                report.keypoints_px = None  # predicted, not measured: it keeps its last keypoints
-            reports.append(report)
+        reports.extend(track.to_track(self.config) for track in self._tracks.values())
         return sorted(reports, key=lambda tr: tr.track_id)
 
     def advance(self, t_ns: int) -> list[Track]:
@@ -238,7 +224,14 @@ class Tracker:
         list of Track
             Every live track, ordered by track id.
         """
-        return self.update(t_ns, [], count_misses=False)
+        t_ns = self._check_time(t_ns)
+        reports = []
+        for track in self._tracks.values():
+            track.predict_to(t_ns)
+            report = track.to_track(self.config)
+            report.keypoints_px = None
+            reports.append(report)
+        return sorted(reports, key=lambda tr: tr.track_id)
 
     def all_confirmed(self, min_score: float = 0.0) -> bool:
         """Whether a track is live and every live one is confirmed (none tentative or coasting),

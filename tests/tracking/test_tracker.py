@@ -219,24 +219,6 @@ def test_advance_predicts_and_publishes_a_track_without_a_hit_or_a_miss():
         assert one.all_confirmed() and one.all_confirmed(0.999) is sure
 
 
-def test_an_update_that_counts_no_misses_starts_tracks_and_leaves_the_others_predicted():
-    """A frame the stride predicts whose search found another drone (``count_misses=False``): the
-    find starts a tentative track with its keypoints; the confirmed track is predicted, neither hit
-    nor missed, and reported without keypoints."""
-    tracker = Tracker(TrackerConfig(confirm_hits=3, confirm_window=5))
-    for k in range(4):
-        tracker.update(
-            t_ns(k), [measurement(seen_from_below(0.0), [0.0, 0.0, 4.0])], keypoints_px=[np.ones((4, 2))]
-        )
-    elsewhere = measurement(seen_from_below(90.0), [2.0, -1.0, 9.0])
-    held, new = tracker.update(t_ns(4), [elsewhere], keypoints_px=[np.full((4, 2), 7.0)], count_misses=False)
-    assert held.status is TrackStatus.CONFIRMED and held.hits == 4 and held.keypoints_px is None
-    assert new.status is TrackStatus.TENTATIVE and new.hits == 1 and new.keypoints_px is not None
-    np.testing.assert_allclose(new.position_m, [2.0, -1.0, 9.0], atol=1e-6)
-    (held, _) = tracker.update(t_ns(5), [])  # a frame that counts misses again
-    assert held.status is TrackStatus.COASTING
-
-
 def test_coasting_track_is_reported_lost_once_after_max_coast_s():
     tracker = Tracker(TrackerConfig(max_coast_s=0.3))
     for k in range(5):
