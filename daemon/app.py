@@ -91,7 +91,6 @@ def default_pipeline_factory(camera: CameraModel, config: DaemonConfig) -> Pipel
         search_more_every=t.search_more_every,
         wide_look_every=t.wide_look_every,
         measure_every=t.measure_every,
-        schedule_offset=t.schedule_offset,
         max_search_candidates=t.max_search_candidates,
     )
 

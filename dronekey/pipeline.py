@@ -273,10 +273,6 @@ class TrackingPipeline:
         measures every frame; 2 halves the network's work on a steadily tracked drone, for several
         cameras on one box, at an accuracy cost (docs/evaluation.md, docs/performance.md,
         twenty-eighth session).
-    schedule_offset : frames by which the periodic work (the searches, the stride's measured
-        frames, the wide looks) is shifted. Cameras on one box that start together and share the
-        default do it all on the same frames, and their heavy frames queue behind each other; give
-        each a different offset (0, 1, 2, ...). 0 (the default) is the schedule as it always was.
     """
 
     def __init__(
@@ -300,9 +296,7 @@ class TrackingPipeline:
         search_more_every: int = 6,
         wide_look_every: int = 1,
         measure_every: int = 1,
-        schedule_offset: int = 0,
     ) -> None:
-        self.schedule_offset = int_at_least("schedule_offset", schedule_offset, 0)
         self.wide_look_every = int_at_least("wide_look_every", wide_look_every, 0)
         self.measure_every = int_at_least("measure_every", measure_every, 1)
         self.search_every = int_at_least("search_every", search_every, 0)
@@ -403,11 +397,6 @@ class TrackingPipeline:
             tuple(measured),
         )
 
-    @property
-    def _tick(self) -> int:
-        """The frame count the periodic work is scheduled on: ``frames`` + ``schedule_offset``."""
-        return self.frames + self.schedule_offset
-
     def _between_measurements(self) -> bool:
         """Whether this frame falls between two measured ones (``measure_every``): not a multiple of
         the stride, no search due, every live track confirmed and its last hit sure of its crop
@@ -415,7 +404,7 @@ class TrackingPipeline:
         be cut from a range gone wrong, and is measured again on the next frame)."""
         return (
             self.measure_every > 1
-            and self._tick % self.measure_every != 0
+            and self.frames % self.measure_every != 0
             and not self._search_due()
             and self.poses.tracker.all_confirmed(self.localizer.config.wide_look_presence)
         )
@@ -426,8 +415,8 @@ class TrackingPipeline:
         runs on the other core meanwhile (the swarm clip's slowest frames were search frames, 49-61
         ms, 7.6 of them the pass). A frame searched because no confirmed track was measured runs
         the pass after its (cheap) track crops."""
-        periodic = bool(self.search_every) and self._tick % self.search_every == 0
-        more = bool(self.max_search_candidates) and self._tick % self.search_more_every == 0
+        periodic = bool(self.search_every) and self.frames % self.search_every == 0
+        more = bool(self.max_search_candidates) and self.frames % self.search_more_every == 0
         return periodic or more
 
     def _search_budget(self, state: tuple[bool, int]) -> tuple[int, bool]:
@@ -435,16 +424,16 @@ class TrackingPipeline:
         drones only (every live track's region left out), from (whether ``max_tracks`` tracks are
         confirmed or no track could start, confirmed tracks measured this frame)."""
         full, n_measured = state
-        if n_measured == 0 or (self.search_every and self._tick % self.search_every == 0):
+        if n_measured == 0 or (self.search_every and self.frames % self.search_every == 0):
             return self.localizer.config.max_candidates, False
-        if full or self._tick % self.search_more_every:
+        if full or self.frames % self.search_more_every:
             return 0, True
         return self.max_search_candidates, True
 
     def _wide_look_due(self, track_id: int) -> bool:
         """Whether a track's drone is read in a wide crop this frame (``wide_look_every``)."""
         every = self.wide_look_every
-        return every > 0 and ((self._tick + track_id) % every == 0 or track_id in self._widened)
+        return every > 0 and ((self.frames + track_id) % every == 0 or track_id in self._widened)
 
     def _track_crops(
         self, frame: Frame, w: int, h: int

@@ -1,10 +1,9 @@
 """One camera of ``dronekey-bench cameras``: a daemon process as a ``dronekey@camN`` unit runs it.
 
 Run as ``python -m dronekey.daemon.bench.camera_worker JSON`` by ``cameras.py``; JSON holds the
-source, calibration, model, camera id and schedule offset, frames, warm-up and the clip's frame
-rate. The daemon reads the clip paced at its frame rate (``source.realtime``, looping) with every
-output on (local endpoints) and stops after ``frames``; the worker prints one JSON line with this
-camera's figures:
+source, calibration, model, camera id, frames, warm-up and the clip's frame rate. The daemon reads
+the clip paced at its frame rate (``source.realtime``, looping) with every output on (local
+endpoints) and stops after ``frames``; the worker prints one JSON line with this camera's figures:
 
 - ``fps``: frames processed per second after the warm-up;
 - ``dropped``: frames a camera at the clip's rate would have sent in that time but the daemon did
@@ -46,11 +45,9 @@ __all__ = ["SETTLE_S", "run_camera"]
 SETTLE_S = 60.0  # a long run's memory growth counts from this far into the measured window
 
 
-def run_camera(
-    setup: BenchSetup, camera_id: str, frames: int, warmup: int, clip_fps: float, schedule_offset: int = 0
-) -> dict:
-    """Run one paced daemon for ``frames`` frames of a clip at ``clip_fps`` with its
-    ``tracking.schedule_offset``; this camera's figures (module docstring)."""
+def run_camera(setup: BenchSetup, camera_id: str, frames: int, warmup: int, clip_fps: float) -> dict:
+    """Run one paced daemon for ``frames`` frames of a clip at ``clip_fps``; this camera's figures
+    (module docstring)."""
     measured = frames - warmup
     settle = warmup + (round(SETTLE_S * clip_fps) if measured >= 2 * SETTLE_S * clip_fps else 0)
     signals = signal_monitor(install=True)
@@ -60,18 +57,12 @@ def run_camera(
     )
     with local_endpoints() as outputs:
         config = setup.config(frames, outputs, realtime=True)
-        config = config.model_copy(
-            update={
-                "camera": config.camera.model_copy(update={"id": camera_id}),
-                "tracking": config.tracking.model_copy(update={"schedule_offset": schedule_offset}),
-            }
-        )
+        config = config.model_copy(update={"camera": config.camera.model_copy(update={"id": camera_id})})
         app = run_daemon(config, meter, signals)
     n, wall_s, cpu_s = meter.window()
     p50, p99, _ = worst_latency(app, meter)
     return {
         "camera": camera_id,
-        "schedule_offset": schedule_offset,
         "frames": n,
         "fps": round(n / wall_s, 2),
         "clip_fps": round(clip_fps, 3),
@@ -105,8 +96,7 @@ def main(argv: list[str] | None = None) -> int:
         args.get("measure_every"),
     )
     try:
-        offset = args.get("schedule_offset", 0)
-        report = run_camera(setup, args["camera"], args["frames"], args["warmup"], args["clip_fps"], offset)
+        report = run_camera(setup, args["camera"], args["frames"], args["warmup"], args["clip_fps"])
     except BenchError as exc:
         print(f"{args['camera']}: {exc}", file=sys.stderr)
         return 1

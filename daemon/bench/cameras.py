@@ -2,12 +2,9 @@
 
 As deployed means one daemon process per camera (the ``dronekey@camN`` systemd template unit):
 each is ``camera_worker.py`` in its own process, reading the clip paced at its frame rate (a camera
-delivers frames at its rate, not faster) with every output on, its own camera id and, as
-docs/daemon.md tells a site with several cameras to configure them, its own
-``tracking.schedule_offset`` (camera k: k; ``same_schedule`` gives them all 0), so that their
-periodic searches do not fall on the same frames. They start together and run ``seconds`` each.
-Before them, in the same run, a decode-only pass measures the reader's CPU per frame; the workers
-measure the pipeline's. The report:
+delivers frames at its rate, not faster) with every output on, its own camera id. They start
+together and run ``seconds`` each. Before them, in the same run, a decode-only pass measures the
+reader's CPU per frame; the workers measure the pipeline's. The report:
 
 - ``cameras``: per camera, achieved ``fps``, ``dropped`` frames, ``latency_ms_p50`` / ``p99``
   (frame decoded -> published), CPU and RSS (``camera_worker.py``);
@@ -45,7 +42,7 @@ _START_GRACE_S = 120.0  # model load, Zenoh session, first frames: per worker, o
 
 
 def _worker_command(
-    setup: BenchSetup, camera_id: str, frames: int, warmup: int, clip_fps: float, schedule_offset: int
+    setup: BenchSetup, camera_id: str, frames: int, warmup: int, clip_fps: float
 ) -> list[str]:
     args = {
         "source": str(setup.source),
@@ -58,7 +55,6 @@ def _worker_command(
         "front_back_path": str(setup.front_back_path) if setup.front_back_path else None,
         "measure_every": setup.measure_every,
         "camera": camera_id,
-        "schedule_offset": schedule_offset,
         "frames": frames,
         "warmup": warmup,
         "clip_fps": clip_fps,
@@ -115,13 +111,7 @@ def _run_workers(commands: dict[str, list[str]], deadline_s: float, signals: Sig
 
 
 def run_cameras_bench(
-    setup: BenchSetup,
-    *,
-    count: int,
-    seconds: float,
-    warmup_s: float = 2.0,
-    same_schedule: bool = False,
-    signals: SignalMonitor,
+    setup: BenchSetup, *, count: int, seconds: float, warmup_s: float = 2.0, signals: SignalMonitor
 ) -> dict:
     """Run ``count`` paced cameras for ``seconds`` each (after ``warmup_s``); the report (module
     docstring)."""
@@ -131,10 +121,7 @@ def run_cameras_bench(
     clip_fps = reader.frame_rate or 30.0
     warmup = max(1, round(warmup_s * clip_fps))
     frames = warmup + max(1, round(seconds * clip_fps))
-    commands = {
-        f"cam{i}": _worker_command(setup, f"cam{i}", frames, warmup, clip_fps, 0 if same_schedule else i)
-        for i in range(count)
-    }
+    commands = {f"cam{i}": _worker_command(setup, f"cam{i}", frames, warmup, clip_fps) for i in range(count)}
     cameras = _run_workers(commands, frames / clip_fps * 3 + _START_GRACE_S, signals)
     pipeline_ms = sum(c["pipeline_cpu_ms_per_frame"] for c in cameras) / count
     cores = usable_cores()

@@ -240,11 +240,7 @@ def _run_cameras_command(args: argparse.Namespace) -> int:
     report, status = _run_bench(
         "cameras",
         lambda signals: run_cameras_bench(
-            _setup(args),
-            count=args.count,
-            seconds=args.seconds,
-            same_schedule=args.same_schedule,
-            signals=signals,
+            _setup(args), count=args.count, seconds=args.seconds, signals=signals
         ),
     )
     if report is None:
@@ -268,12 +264,6 @@ def add_cameras_command(subparsers) -> None:
     parser.add_argument("--count", type=positive_int, default=1, help="cameras to run (default 1)")
     parser.add_argument(
         "--seconds", type=positive_float, default=60.0, help="seconds each camera runs (default 60)"
-    )
-    parser.add_argument(
-        "--same-schedule",
-        action="store_true",
-        help="give every camera tracking.schedule_offset 0 (default: camera k gets k, as docs/daemon.md "
-        "tells a site with several cameras, so that their periodic searches fall on different frames)",
     )
     parser.set_defaults(handler=_run_cameras_command)
 

@@ -41,14 +41,6 @@ class TrackingConfig(Section):
         "tracks predicted and published on the frames between (1: every frame, as shipped; 2 lets three "
         "cameras share the 2-core box at 30 FPS, at the accuracy cost docs/evaluation.md gives)",
     )
-    schedule_offset: int = Field(
-        0,
-        ge=0,
-        le=100000,
-        description="frames by which the periodic work (searches, the stride's measured frames, wide "
-        "looks) is shifted: give each camera on one box a different one (0, 1, 2, ...) so that their "
-        "heavy frames do not fall on the same instants (0: as shipped)",
-    )
     max_search_candidates: int = Field(
         2, ge=0, le=16, description="crops a search for more drones may check (0: no such search)"
     )
