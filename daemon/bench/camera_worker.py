@@ -8,7 +8,9 @@ endpoints) and stops after ``frames``; the worker prints one JSON line with this
 - ``fps``: frames processed per second after the warm-up;
 - ``dropped``: frames a camera at the clip's rate would have sent in that time but the daemon did
   not take (the file source waits instead of dropping, so the shortfall is counted);
-- ``latency_ms_p50`` / ``p99``: frame decoded -> update published, of the slowest output;
+- ``latency_ms_p50`` / ``p99``: frame decoded -> update published, of the slowest output, over
+  every frame of the measured window; ``outputs``: each output's own (and what it published,
+  dropped and failed), which says which one is the slowest;
 - ``cpu_ms_per_frame``: the process's CPU per frame (decoder, pipeline, outputs), and
   ``pipeline_cpu_ms_per_frame``: ``TrackingPipeline.process`` alone;
 - ``rss_mb``: resident set at the end (MiB); ``rss_mb_settled``: ``SETTLE_S`` of the clip's frames
@@ -60,7 +62,7 @@ def run_camera(setup: BenchSetup, camera_id: str, frames: int, warmup: int, clip
         config = config.model_copy(update={"camera": config.camera.model_copy(update={"id": camera_id})})
         app = run_daemon(config, meter, signals)
     n, wall_s, cpu_s = meter.window()
-    p50, p99, _ = worst_latency(app, meter)
+    p50, p99, outputs = worst_latency(app, meter)
     return {
         "camera": camera_id,
         "frames": n,
@@ -75,6 +77,7 @@ def run_camera(setup: BenchSetup, camera_id: str, frames: int, warmup: int, clip
         "rss_mb_settled": round(meter.settled.rss_mb, 1),
         "rss_growth_percent": growth_percent(meter.settled.rss_mb, meter.end.rss_mb),
         "rss_trend_percent": jsonable(trend_percent(meter.rss_stamps)),  # null for a short run
+        "outputs": jsonable(outputs),
     }
 
 

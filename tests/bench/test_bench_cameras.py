@@ -13,7 +13,7 @@ from test_bench import common
 CAMERA_KEYS = {
     "camera", "frames", "fps", "clip_fps", "dropped", "latency_ms_p50", "latency_ms_p99",
     "cpu_ms_per_frame", "pipeline_cpu_ms_per_frame", "rss_mb", "rss_mb_settled", "rss_growth_percent",
-    "rss_trend_percent",
+    "rss_trend_percent", "malloc_arenas", "outputs",
 }  # fmt: skip
 
 
@@ -31,6 +31,7 @@ def test_two_cameras_report_each_and_the_cpu_limit(assets):
     assert result.returncode == 0, result.stderr
     report = json.loads(result.stdout)
     assert report["count"] == 2 and [c["camera"] for c in report["cameras"]] == ["cam0", "cam1"]
+    assert all(c["malloc_arenas"] == 2 for c in report["cameras"])  # as dronekey-daemon caps them
     for cam in report["cameras"]:
         assert set(cam) == CAMERA_KEYS
         assert 0 < cam["frames"] <= 60 and cam["clip_fps"] == pytest.approx(30)  # 2 s at 30 fps at most
@@ -39,6 +40,8 @@ def test_two_cameras_report_each_and_the_cpu_limit(assets):
         # and the first one coming 50 ms late reads as 31.2 fps (seen once in about 15 runs)
         assert 0 < cam["fps"] <= 33 and cam["dropped"] >= 0
         assert 0 < cam["latency_ms_p50"] <= cam["latency_ms_p99"]
+        assert set(cam["outputs"]) == {"zenoh", "mavlink", "mcap"}  # every output on, each one's own
+        assert cam["latency_ms_p99"] == max(o["latency_ms_p99"] for o in cam["outputs"].values())
         assert 0 < cam["pipeline_cpu_ms_per_frame"] < cam["cpu_ms_per_frame"]
     assert report["fps_total"] == pytest.approx(sum(c["fps"] for c in report["cameras"]), abs=0.02)
     per_frame_ms = report["decode_cpu_ms_per_frame"] + report["pipeline_cpu_ms_per_frame"]
