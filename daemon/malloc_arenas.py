@@ -1,11 +1,11 @@
 """glibc's malloc arenas, capped for the daemon's process.
 
 glibc gives each thread that allocates its own arena, up to eight per core, and every arena keeps
-the memory its thread freed for that thread's next allocation. The daemon's threads (the decoder,
-one per output, ONNX Runtime's, the search's saliency pass) each hold tens of MiB so: one camera's
-daemon held 510.6 MiB with glibc's default and 403.3 MiB with two arenas, at the same CPU per frame
-(19.05 against 19.12 ms; docs/performance.md, twenty-ninth session). With several cameras on one
-box that is a hundred MiB a camera. The cap is what ``MALLOC_ARENA_MAX=2`` in the environment
+the memory its thread freed for that thread's next allocation. The daemon runs about twenty threads (the
+decoder, one per output, ONNX Runtime's, the search's saliency pass): one camera's daemon held
+510.6 MiB with glibc's default and 403.3 MiB with two arenas, at the same CPU per frame (19.05
+against 19.12 ms; docs/performance.md, twenty-ninth session), a hundred MiB a camera on a box
+with several. The cap is what ``MALLOC_ARENA_MAX=2`` in the environment
 would set; an operator's own ``MALLOC_ARENA_MAX`` is left to stand.
 """
 
@@ -33,7 +33,10 @@ def limit_malloc_arenas(arenas: int = DAEMON_MALLOC_ARENAS) -> int | None:
     from_env = os.environ.get("MALLOC_ARENA_MAX", "").strip()
     if from_env:
         return int(from_env) if from_env.isdigit() else None
-    libc = ctypes.CDLL(None)
+    try:
+        libc = ctypes.CDLL(None)
+    except (OSError, TypeError):  # no process-wide C library handle (Windows)
+        return None
     if not hasattr(libc, "gnu_get_libc_version") or not hasattr(libc, "mallopt"):
         return None
     if libc.mallopt(_M_ARENA_MAX, arenas) != 1:
