@@ -17,7 +17,8 @@ __all__ = ["LatencyHistogram"]
 
 _LOW_MS = 0.01  # the first bin's lower edge; shorter latencies count in it
 _RATIO = 1.002  # each bin's upper edge over its lower one
-_BINS = math.ceil(math.log(1e6 / _LOW_MS) / math.log(_RATIO))  # up to 1,000 s; longer count in the last
+_LOG_RATIO = math.log(_RATIO)
+_BINS = math.ceil(math.log(1e6 / _LOW_MS) / _LOG_RATIO)  # up to 1,000 s; longer count in the last
 
 
 class LatencyHistogram:
@@ -42,7 +43,7 @@ class LatencyHistogram:
         if latency_ms <= _LOW_MS:
             index = 0
         else:
-            index = min(int(math.log(latency_ms / _LOW_MS) / math.log(_RATIO)), _BINS - 1)
+            index = min(int(math.log(latency_ms / _LOW_MS) / _LOG_RATIO), _BINS - 1)
         self.counts[index] += 1
 
     def copy(self) -> LatencyHistogram:
