@@ -21,8 +21,8 @@ once (Hungarian, ``dronekey.tracking.tracker``). Every detection must pass the p
 from __future__ import annotations
 
 import logging
-import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -325,7 +325,12 @@ class TrackingPipeline:
             camera, self.spec, tracker, keypoint_sigma_px, max_reprojection_frac, plausibility
         )
         self.frames = 0
-        self.helper_cpu_s = 0.0  # CPU seconds spent on helper threads (the early saliency passes)
+        self.helper_cpu_s = 0.0  # CPU seconds spent on the helper thread (the early saliency passes)
+        # The early saliency passes run on one long-lived thread (OpenCV and numpy release the GIL,
+        # so it uses a second core). Not a thread per pass: OpenCV keeps the per-thread data of every
+        # thread that ever called it until the process exits, +12.5 MiB in an hour of one camera
+        # (docs/performance.md, thirty-first session). Its thread ends with the pipeline.
+        self._helper = ThreadPoolExecutor(max_workers=1, thread_name_prefix="saliency")
         self._previous_image: FrameImage | None = None
         self._widened: set[int] = set()  # tracks whose wide look was taken last frame
 
@@ -360,11 +365,12 @@ class TrackingPipeline:
             self._previous_image = frame.image
             timings["total"] = _ms(t0)
             return PipelineOutput(tuple(tracks), None, None, "predicted", None, timings)
-        early = _Background(self.localizer.saliency, frame.image) if self._search_due() else None
+        due = self._search_due()
+        early = self._helper.submit(_timed, self.localizer.saliency, frame.image) if due else None
         measured, regions, rejections, state = self._track_crops(frame, w, h)
         timings["track_crop"] = _ms(t0)
-        saliency = early.result() if early is not None else None
-        self.helper_cpu_s += early.cpu_s if early is not None else 0.0
+        saliency, helper_s = early.result() if early is not None else (None, 0.0)
+        self.helper_cpu_s += helper_s
         budget, more_only = self._search_budget(state)
         exclude = regions[1] if more_only else regions[0]
         if budget:
@@ -498,31 +504,11 @@ def airframe_range_span(drone: DroneSpec, alternatives: tuple[DroneSpec, ...]) -
     return max((abs(alt.diagonal_m / drone.diagonal_m - 1.0) for alt in alternatives), default=0.0)
 
 
-class _Background:
-    """``fn(*args)`` on a thread of its own; ``result()`` waits for it and re-raises its error.
-    For calls that release the GIL (OpenCV, numpy), so that they use a second core. ``cpu_s``: the
-    CPU time the call took on its thread (benchmarks add it to the pipeline's own)."""
-
-    def __init__(self, fn, *args) -> None:
-        self._value = self._error = None
-        self.cpu_s = 0.0
-        self._thread = threading.Thread(target=self._run, args=(fn, args), daemon=True)
-        self._thread.start()
-
-    def _run(self, fn, args) -> None:
-        started = time.thread_time()
-        try:
-            self._value = fn(*args)
-        except BaseException as error:  # handed to the caller by result()
-            self._error = error
-        finally:
-            self.cpu_s = time.thread_time() - started
-
-    def result(self):
-        self._thread.join()
-        if self._error is not None:
-            raise self._error
-        return self._value
+def _timed(fn, *args) -> tuple:
+    """``fn(*args)`` and the CPU seconds it took on the thread that ran it."""
+    started = time.thread_time()
+    value = fn(*args)
+    return value, time.thread_time() - started
 
 
 def _one_reading_per_drone(found: list) -> list:
