@@ -48,6 +48,15 @@ class SourceConfig(Section):
         None, description="video file, image folder, /dev/videoN, rtsp|http|tcp|udp URL or sim://preset"
     )
     realtime: bool = Field(False, description="pace files, image folders and sim at their frame rate")
+    realtime_phase: float | None = Field(
+        None,
+        ge=0.0,
+        lt=1.0,
+        description="with realtime: release frames on the frame-rate grid of the system's monotonic "
+        "clock, this fraction of a frame interval into each (replayed cameras on one box then deliver "
+        "in a known phase: 0 for all, together, as genlocked cameras do; k/N for N cameras, evenly "
+        "spread); null: paced from the first frame read, so in whatever phase the process started",
+    )
     loop: bool = Field(False, description="restart a file, image folder or sim at its end")
     queue_size: int = Field(2, ge=1, le=256, description="frames buffered from live sources (drop oldest)")
     stall_timeout_s: Seconds = Field(

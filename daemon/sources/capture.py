@@ -9,7 +9,10 @@ Policy depends only on whether the source is live:
   attempts in a row it is *failed*.
 - **finite** (file, image folder, sim): every frame is delivered in order; the reader waits for
   room in the queue (back-pressure, no drops), paces itself at the stream's rate with ``realtime``,
-  and restarts at its end with ``loop`` (timestamps keep increasing across passes).
+  and restarts at its end with ``loop`` (timestamps keep increasing across passes). Paced frames
+  are released from the first frame read on, or, with ``realtime_phase``, on the frame-rate grid
+  of the system's monotonic clock (one clock for every process: several replayed cameras on one
+  box then deliver in a phase that is chosen, not left to when each process started).
 
 Corrupt frames (undecodable or malformed) are counted and skipped. ``busy_for_s`` tells how long
 the thread has been inside one reader call, so the runner can stop petting the systemd watchdog
@@ -21,6 +24,7 @@ from __future__ import annotations
 import collections
 import contextlib
 import logging
+import math
 import threading
 import time
 from collections.abc import Iterator
@@ -36,9 +40,21 @@ from dronekey.daemon.sources.base import (
 )
 from dronekey.types import Frame
 
-__all__ = ["Capture", "CaptureStats", "FrameQueue"]
+__all__ = ["Capture", "CaptureStats", "FrameQueue", "pace_start"]
 
 log = logging.getLogger(__name__)
+
+
+def pace_start(now_s: float, interval_ns: int, phase: float | None) -> float:
+    """When a paced source releases its first frame, on the monotonic clock (s): ``now_s``, or with
+    ``phase`` (a fraction of a frame interval, ``SourceConfig.realtime_phase``) the first instant
+    at or after it that lies ``phase`` of an interval into one of the grid's intervals, the grid
+    being the multiples of ``interval_ns`` from the clock's zero."""
+    if phase is None:
+        return now_s
+    interval_s = interval_ns / 1e9
+    offset_s = phase * interval_s
+    return offset_s + math.ceil((now_s - offset_s) / interval_s) * interval_s
 
 
 class FrameQueue:
@@ -303,7 +319,8 @@ class Capture:
             t_ns = result.t_ns + t_offset_ns
             if self.config.realtime:  # release the frame when a camera would have delivered it
                 if pace_origin is None:
-                    pace_origin = (time.monotonic(), t_ns)
+                    start = pace_start(time.monotonic(), interval_ns, self.config.realtime_phase)
+                    pace_origin = (start, t_ns)
                 delay = pace_origin[0] + (t_ns - pace_origin[1]) / 1e9 - time.monotonic()
                 if delay > 0 and self._stop.wait(delay):
                     return

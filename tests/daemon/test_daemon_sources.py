@@ -26,6 +26,7 @@ from dronekey.daemon.sources import (
     SourceState,
     make_reader,
 )
+from dronekey.daemon.sources.capture import pace_start
 from dronekey.daemon.sources.image_folder import ImageFolderReader
 from dronekey.daemon.sources.opencv_readers import (
     NetworkStreamReader,
@@ -51,6 +52,17 @@ def drain(capture: Capture, timeout_s: float = 30.0, delay_s: float = 0.0) -> li
         elif capture.finished:
             return frames
     raise AssertionError(f"source did not end within {timeout_s} s (state {capture.state})")
+
+
+def take(capture: Capture, n: int) -> list[CapturedFrame]:
+    """The first ``n`` frames of a started capture (each within a second), then stop it."""
+    items = []
+    while len(items) < n:
+        item = capture.get(1.0)
+        assert item is not None, capture.state
+        items.append(item)
+    capture.stop()
+    return items
 
 
 @pytest.fixture(scope="module")
@@ -164,18 +176,44 @@ def test_loop_keeps_timestamps_increasing_and_realtime_paces(media):
     capture = Capture(VideoFileReader(media / "h264.mp4"), config)
     started = time.monotonic()
     capture.start()
-    frames = []
-    while len(frames) < 45:
-        item = capture.get(1.0)
-        assert item is not None, capture.state
-        frames.append(item.frame)
+    frames = [item.frame for item in take(capture, 45)]
     elapsed = time.monotonic() - started
-    capture.stop()
     t_ns = np.array([f.t_ns for f in frames])
     assert np.all(np.diff(t_ns) > 0)
     np.testing.assert_allclose(np.diff(t_ns), 1e9 / FPS, atol=1e6)  # no jump at the wrap-around
     assert [f.index for f in frames] == list(range(45))
     assert elapsed >= 1.2  # 44 frame intervals at 30 fps is 1.47 s; without pacing this takes ~0.2 s
+
+
+@pytest.mark.parametrize("phase", [0.0, 0.5])
+def test_realtime_phase_releases_frames_on_the_monotonic_clocks_frame_grid(media, phase):
+    """``realtime_phase``: every paced frame leaves the capture ``phase`` of a frame interval into
+    the monotonic clock's frame-rate grid (the median offset within a few ms: the release is a
+    timed wait), whenever the capture started."""
+    interval_ns = round(1e9 / FPS)
+    config = SourceConfig(uri="x", realtime=True, realtime_phase=phase)
+    capture = Capture(VideoFileReader(media / "h264.mp4"), config)
+    time.sleep(0.0137)  # start off the grid
+    capture.start()
+    released = [item.t_decoded_mono_ns for item in take(capture, 20)]
+    offsets = (np.array(released) - round(phase * interval_ns)) % interval_ns
+    offsets = np.where(offsets > interval_ns / 2, offsets - interval_ns, offsets)  # wrapped to +-half
+    assert abs(np.median(offsets)) < 5e6, offsets / 1e6
+
+
+def test_pace_start_is_the_next_grid_instant_of_the_phase_or_now_without_one():
+    interval_ns = 33_333_333
+    assert pace_start(12.3456, interval_ns, None) == 12.3456
+    start = pace_start(12.3456, interval_ns, 0.25)
+    assert 12.3456 <= start < 12.3456 + interval_ns / 1e9
+    assert (start / (interval_ns / 1e9) - 0.25) % 1.0 == pytest.approx(0.0, abs=1e-6)
+    assert pace_start(1.0, 500_000_000, 0.0) == 1.0  # already on the grid
+
+
+def test_realtime_phase_outside_a_frame_interval_is_refused():
+    for bad in (-0.1, 1.0, 1.5):
+        with pytest.raises(ValueError, match="realtime_phase"):
+            SourceConfig(uri="x", realtime=True, realtime_phase=bad)
 
 
 def test_image_folder_in_natural_order_with_a_corrupt_image(tmp_path):
