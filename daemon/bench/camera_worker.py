@@ -47,9 +47,12 @@ __all__ = ["SETTLE_S", "run_camera"]
 SETTLE_S = 60.0  # a long run's memory growth counts from this far into the measured window
 
 
-def run_camera(setup: BenchSetup, camera_id: str, frames: int, warmup: int, clip_fps: float) -> dict:
-    """Run one paced daemon for ``frames`` frames of a clip at ``clip_fps``; this camera's figures
-    (module docstring)."""
+def run_camera(
+    setup: BenchSetup, camera_id: str, frames: int, warmup: int, clip_fps: float, phase: float | None = None
+) -> dict:
+    """Run one paced daemon for ``frames`` frames of a clip at ``clip_fps``, delivering ``phase`` of
+    a frame interval into the monotonic clock's frame-rate grid (``source.realtime_phase``; None:
+    from its first frame); this camera's figures (module docstring)."""
     measured = frames - warmup
     settle = warmup + (round(SETTLE_S * clip_fps) if measured >= 2 * SETTLE_S * clip_fps else 0)
     signals = signal_monitor(install=True)
@@ -59,7 +62,12 @@ def run_camera(setup: BenchSetup, camera_id: str, frames: int, warmup: int, clip
     )
     with local_endpoints() as outputs:
         config = setup.config(frames, outputs, realtime=True)
-        config = config.model_copy(update={"camera": config.camera.model_copy(update={"id": camera_id})})
+        config = config.model_copy(
+            update={
+                "camera": config.camera.model_copy(update={"id": camera_id}),
+                "source": config.source.model_copy(update={"realtime_phase": phase}),
+            }
+        )
         app = run_daemon(config, meter, signals)
     n, wall_s, cpu_s = meter.window()
     p50, p99, outputs = worst_latency(app, meter)
@@ -68,6 +76,7 @@ def run_camera(setup: BenchSetup, camera_id: str, frames: int, warmup: int, clip
         "frames": n,
         "fps": round(n / wall_s, 2),
         "clip_fps": round(clip_fps, 3),
+        "realtime_phase": phase,
         "dropped": max(0, round(wall_s * clip_fps) - n),
         "latency_ms_p50": round(p50, 2),
         "latency_ms_p99": round(p99, 2),
@@ -99,7 +108,9 @@ def main(argv: list[str] | None = None) -> int:
         args.get("measure_every"),
     )
     try:
-        report = run_camera(setup, args["camera"], args["frames"], args["warmup"], args["clip_fps"])
+        report = run_camera(
+            setup, args["camera"], args["frames"], args["warmup"], args["clip_fps"], args.get("phase")
+        )
     except BenchError as exc:
         print(f"{args['camera']}: {exc}", file=sys.stderr)
         return 1

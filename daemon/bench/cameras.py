@@ -3,8 +3,12 @@
 As deployed means one daemon process per camera (the ``dronekey@camN`` systemd template unit):
 each is ``camera_worker.py`` in its own process, reading the clip paced at its frame rate (a camera
 delivers frames at its rate, not faster) with every output on, its own camera id. They start
-together and run ``seconds`` each. Before them, in the same run, a decode-only pass measures the
-reader's CPU per frame; the workers measure the pipeline's. The report:
+together and run ``seconds`` each, delivering frames in the phase ``phase`` names (``PHASES``;
+``source.realtime_phase``): a camera's latency depends on whether the others' frames arrive at the
+same instant, which a run paced from each process's own start left to chance (measured, the phase
+moves the p99 less than the box's own speed does, which the decode pass below shows:
+docs/performance.md, thirty-second session). Before them, in the same run, a decode-only pass
+measures the reader's CPU per frame; the workers measure the pipeline's. The report:
 
 - ``cameras``: per camera, achieved ``fps``, ``dropped`` frames, ``latency_ms_p50`` / ``p99``
   (frame decoded -> published), CPU and RSS (``camera_worker.py``);
@@ -34,15 +38,28 @@ from dronekey.daemon.bench.errors import BenchError, BenchInterruptedError
 from dronekey.daemon.bench.pipeline import measure_decode
 from dronekey.daemon.signals import SignalMonitor
 
-__all__ = ["run_cameras_bench"]
+__all__ = ["PHASES", "camera_phases", "run_cameras_bench"]
 
 LOG = logging.getLogger(__name__)
 _DECODE_FRAMES = 300
 _START_GRACE_S = 120.0  # model load, Zenoh session, first frames: per worker, on a loaded box
+# When each camera delivers its frames: all at the same instant (genlocked cameras, the worst
+# case), evenly spread over a frame interval, or paced from each process's start (chance).
+PHASES = ("aligned", "staggered", "free")
+
+
+def camera_phases(phase: str, count: int) -> list[float | None]:
+    """Each camera's ``source.realtime_phase`` (a fraction of a frame interval) for a ``PHASES``
+    mode: 0 for every camera (aligned), k / count for camera k (staggered), None (free)."""
+    if phase not in PHASES:
+        raise ValueError(f"phase must be one of {', '.join(PHASES)}, got {phase!r}")
+    if phase == "free":
+        return [None] * count
+    return [0.0 if phase == "aligned" else k / count for k in range(count)]
 
 
 def _worker_command(
-    setup: BenchSetup, camera_id: str, frames: int, warmup: int, clip_fps: float
+    setup: BenchSetup, camera_id: str, frames: int, warmup: int, clip_fps: float, phase: float | None
 ) -> list[str]:
     args = {
         "source": str(setup.source),
@@ -58,6 +75,7 @@ def _worker_command(
         "frames": frames,
         "warmup": warmup,
         "clip_fps": clip_fps,
+        "phase": phase,
     }
     return [sys.executable, "-m", "dronekey.daemon.bench.camera_worker", json.dumps(args)]
 
@@ -111,17 +129,27 @@ def _run_workers(commands: dict[str, list[str]], deadline_s: float, signals: Sig
 
 
 def run_cameras_bench(
-    setup: BenchSetup, *, count: int, seconds: float, warmup_s: float = 2.0, signals: SignalMonitor
+    setup: BenchSetup,
+    *,
+    count: int,
+    seconds: float,
+    phase: str = "aligned",
+    warmup_s: float = 2.0,
+    signals: SignalMonitor,
 ) -> dict:
-    """Run ``count`` paced cameras for ``seconds`` each (after ``warmup_s``); the report (module
-    docstring)."""
+    """Run ``count`` paced cameras for ``seconds`` each (after ``warmup_s``), delivering in
+    ``phase`` (``PHASES``); the report (module docstring)."""
+    phases = camera_phases(phase, count)
     setup.check()
     LOG.info("decode pass: %d frames", _DECODE_FRAMES)
     _, reader, decode_cpu_ms = measure_decode(setup, _DECODE_FRAMES, signals)
     clip_fps = reader.frame_rate or 30.0
     warmup = max(1, round(warmup_s * clip_fps))
     frames = warmup + max(1, round(seconds * clip_fps))
-    commands = {f"cam{i}": _worker_command(setup, f"cam{i}", frames, warmup, clip_fps) for i in range(count)}
+    commands = {
+        f"cam{i}": _worker_command(setup, f"cam{i}", frames, warmup, clip_fps, phase_i)
+        for i, phase_i in enumerate(phases)
+    }
     cameras = _run_workers(commands, frames / clip_fps * 3 + _START_GRACE_S, signals)
     pipeline_ms = sum(c["pipeline_cpu_ms_per_frame"] for c in cameras) / count
     cores = usable_cores()
@@ -131,6 +159,7 @@ def run_cameras_bench(
         "count": count,
         "seconds": seconds,
         "clip_fps": round(clip_fps, 3),
+        "phase": phase,
         "cameras": cameras,
         "fps_total": round(fps_total, 2),
         "dropped_total": sum(c["dropped"] for c in cameras),

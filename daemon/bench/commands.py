@@ -14,7 +14,7 @@ from pathlib import Path
 
 from dronekey.bench.arguments import positive_float, positive_int
 from dronekey.daemon.bench.bench_setup import BenchSetup
-from dronekey.daemon.bench.cameras import run_cameras_bench
+from dronekey.daemon.bench.cameras import PHASES, run_cameras_bench
 from dronekey.daemon.bench.daemon_run import signal_monitor
 from dronekey.daemon.bench.errors import BenchError, BenchInterruptedError
 from dronekey.daemon.bench.pipeline import run_pipeline_bench
@@ -221,6 +221,7 @@ def _camera_lines(report: dict) -> str:
             f"{c['rss_growth_percent']:8.2f} {_percent_or_dash(c['rss_trend_percent'])}"
         )
     keys = (
+        "phase",
         "fps_total",
         "dropped_total",
         "decode_cpu_ms_per_frame",
@@ -240,7 +241,7 @@ def _run_cameras_command(args: argparse.Namespace) -> int:
     report, status = _run_bench(
         "cameras",
         lambda signals: run_cameras_bench(
-            _setup(args), count=args.count, seconds=args.seconds, signals=signals
+            _setup(args), count=args.count, seconds=args.seconds, phase=args.phase, signals=signals
         ),
     )
     if report is None:
@@ -264,6 +265,14 @@ def add_cameras_command(subparsers) -> None:
     parser.add_argument("--count", type=positive_int, default=1, help="cameras to run (default 1)")
     parser.add_argument(
         "--seconds", type=positive_float, default=60.0, help="seconds each camera runs (default 60)"
+    )
+    parser.add_argument(
+        "--phase",
+        choices=PHASES,
+        default="aligned",
+        help="when the cameras deliver their frames: aligned (all at the same instant, as genlocked "
+        "cameras do: the worst case, the default), staggered (evenly spread over a frame interval) "
+        "or free (paced from each process's start: a phase drawn by chance, as before)",
     )
     parser.set_defaults(handler=_run_cameras_command)
 

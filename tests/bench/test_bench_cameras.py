@@ -13,7 +13,7 @@ from test_bench import common
 CAMERA_KEYS = {
     "camera", "frames", "fps", "clip_fps", "dropped", "latency_ms_p50", "latency_ms_p99",
     "cpu_ms_per_frame", "pipeline_cpu_ms_per_frame", "rss_mb", "rss_mb_settled", "rss_growth_percent",
-    "rss_trend_percent", "malloc_arenas", "outputs",
+    "rss_trend_percent", "malloc_arenas", "outputs", "realtime_phase",
 }  # fmt: skip
 
 
@@ -27,10 +27,11 @@ def cameras(*args: str) -> subprocess.CompletedProcess:
 
 
 def test_two_cameras_report_each_and_the_cpu_limit(assets):
-    result = cameras(*common(assets), "--count", "2", "--seconds", "2", "--json")
+    result = cameras(*common(assets), "--count", "2", "--seconds", "2", "--phase", "staggered", "--json")
     assert result.returncode == 0, result.stderr
     report = json.loads(result.stdout)
     assert report["count"] == 2 and [c["camera"] for c in report["cameras"]] == ["cam0", "cam1"]
+    assert report["phase"] == "staggered" and [c["realtime_phase"] for c in report["cameras"]] == [0.0, 0.5]
     assert all(c["malloc_arenas"] == 2 for c in report["cameras"])  # as dronekey-daemon caps them
     for cam in report["cameras"]:
         assert set(cam) == CAMERA_KEYS
@@ -62,12 +63,25 @@ def test_table_and_bad_input(assets, tmp_path):
     lines = result.stdout.splitlines()
     assert lines[0].split()[:3] == ["camera", "fps", "dropped"] and lines[1].startswith("cam0")
     assert any(line.startswith("cpu_limit_fps") for line in lines)
+    assert "phase                     aligned" in lines  # the default: every camera at the same instant
     bad = cameras("--source", str(tmp_path / "absent.mp4"), "--count", "0")
     assert bad.returncode == 2 and "--count" in bad.stderr
+    bad = cameras("--source", str(tmp_path / "absent.mp4"), "--phase", "random")
+    assert bad.returncode == 2 and "--phase" in bad.stderr
     missing = cameras("--source", str(tmp_path / "absent.mp4"))
     assert missing.returncode == 1
     expected = f"dronekey-bench cameras: error: --source: no such file: {tmp_path / 'absent.mp4'}"
     assert missing.stderr.strip() == expected
+
+
+def test_camera_phases_aligned_staggered_and_free():
+    from dronekey.daemon.bench import cameras as bench_cameras
+
+    assert bench_cameras.camera_phases("aligned", 3) == [0.0, 0.0, 0.0]
+    assert bench_cameras.camera_phases("staggered", 4) == [0.0, 0.25, 0.5, 0.75]
+    assert bench_cameras.camera_phases("free", 2) == [None, None]
+    with pytest.raises(ValueError, match="phase must be one of aligned, staggered, free, got 'random'"):
+        bench_cameras.camera_phases("random", 2)
 
 
 def test_a_worker_that_logs_more_than_a_pipe_holds_does_not_stall_the_run(assets, monkeypatch):
