@@ -54,15 +54,21 @@ class BenchSetup:
             )
 
     def config(
-        self, frames: int, outputs: tuple[Path, int] | None = None, realtime: bool = False
+        self,
+        frames: int,
+        outputs: tuple[Path, int] | None = None,
+        realtime: bool = False,
+        realtime_phase: float | None = None,
     ) -> DaemonConfig:
         """The daemon configuration: defaults, the source looping and stopping after ``frames``
-        (paced at its frame rate with ``realtime``) and, with ``outputs = (mcap_dir, udp_port)``,
-        every output on with local endpoints (else every output off)."""
+        (paced at its frame rate with ``realtime``, in ``source.realtime_phase``) and, with
+        ``outputs = (mcap_dir, udp_port)``, every output on with local endpoints (else every output
+        off)."""
         overrides = {
             "source.uri": (str(self.source), "--source"),
             "source.loop": (True, "loop"),
             "source.realtime": (realtime, "realtime"),
+            "source.realtime_phase": (realtime_phase, "--phase"),
             "source.max_frames": (frames, "--frames"),
             "log.level": ("WARNING", "log"),
         }

@@ -48,11 +48,17 @@ SETTLE_S = 60.0  # a long run's memory growth counts from this far into the meas
 
 
 def run_camera(
-    setup: BenchSetup, camera_id: str, frames: int, warmup: int, clip_fps: float, phase: float | None = None
+    setup: BenchSetup,
+    camera_id: str,
+    frames: int,
+    warmup: int,
+    clip_fps: float,
+    realtime_phase: float | None = None,
 ) -> dict:
-    """Run one paced daemon for ``frames`` frames of a clip at ``clip_fps``, delivering ``phase`` of
-    a frame interval into the monotonic clock's frame-rate grid (``source.realtime_phase``; None:
-    from its first frame); this camera's figures (module docstring)."""
+    """Run one paced daemon for ``frames`` frames of a clip at ``clip_fps``, delivering
+    ``realtime_phase`` of a frame interval into the monotonic clock's frame-rate grid
+    (``source.realtime_phase``; None: from its first frame); this camera's figures (module
+    docstring)."""
     measured = frames - warmup
     settle = warmup + (round(SETTLE_S * clip_fps) if measured >= 2 * SETTLE_S * clip_fps else 0)
     signals = signal_monitor(install=True)
@@ -61,13 +67,8 @@ def run_camera(
         frames, warmup, camera_id, rss=True, settle=settle, seconds=measured / clip_fps, stop=signals.stop
     )
     with local_endpoints() as outputs:
-        config = setup.config(frames, outputs, realtime=True)
-        config = config.model_copy(
-            update={
-                "camera": config.camera.model_copy(update={"id": camera_id}),
-                "source": config.source.model_copy(update={"realtime_phase": phase}),
-            }
-        )
+        config = setup.config(frames, outputs, realtime=True, realtime_phase=realtime_phase)
+        config = config.model_copy(update={"camera": config.camera.model_copy(update={"id": camera_id})})
         app = run_daemon(config, meter, signals)
     n, wall_s, cpu_s = meter.window()
     p50, p99, outputs = worst_latency(app, meter)
@@ -76,7 +77,7 @@ def run_camera(
         "frames": n,
         "fps": round(n / wall_s, 2),
         "clip_fps": round(clip_fps, 3),
-        "realtime_phase": phase,
+        "realtime_phase": realtime_phase,
         "dropped": max(0, round(wall_s * clip_fps) - n),
         "latency_ms_p50": round(p50, 2),
         "latency_ms_p99": round(p99, 2),
@@ -108,9 +109,8 @@ def main(argv: list[str] | None = None) -> int:
         args.get("measure_every"),
     )
     try:
-        report = run_camera(
-            setup, args["camera"], args["frames"], args["warmup"], args["clip_fps"], args.get("phase")
-        )
+        phase = args.get("realtime_phase")
+        report = run_camera(setup, args["camera"], args["frames"], args["warmup"], args["clip_fps"], phase)
     except BenchError as exc:
         print(f"{args['camera']}: {exc}", file=sys.stderr)
         return 1

@@ -59,7 +59,12 @@ def camera_phases(phase: str, count: int) -> list[float | None]:
 
 
 def _worker_command(
-    setup: BenchSetup, camera_id: str, frames: int, warmup: int, clip_fps: float, phase: float | None
+    setup: BenchSetup,
+    camera_id: str,
+    frames: int,
+    warmup: int,
+    clip_fps: float,
+    realtime_phase: float | None,
 ) -> list[str]:
     args = {
         "source": str(setup.source),
@@ -75,7 +80,7 @@ def _worker_command(
         "frames": frames,
         "warmup": warmup,
         "clip_fps": clip_fps,
-        "phase": phase,
+        "realtime_phase": realtime_phase,
     }
     return [sys.executable, "-m", "dronekey.daemon.bench.camera_worker", json.dumps(args)]
 
@@ -147,8 +152,8 @@ def run_cameras_bench(
     warmup = max(1, round(warmup_s * clip_fps))
     frames = warmup + max(1, round(seconds * clip_fps))
     commands = {
-        f"cam{i}": _worker_command(setup, f"cam{i}", frames, warmup, clip_fps, phase_i)
-        for i, phase_i in enumerate(phases)
+        f"cam{i}": _worker_command(setup, f"cam{i}", frames, warmup, clip_fps, realtime_phase)
+        for i, realtime_phase in enumerate(phases)
     }
     cameras = _run_workers(commands, frames / clip_fps * 3 + _START_GRACE_S, signals)
     pipeline_ms = sum(c["pipeline_cpu_ms_per_frame"] for c in cameras) / count
