@@ -316,14 +316,14 @@ class DaemonApp:
             camera_id=self.config.camera.id,
             frame_index=frame.index,
             t_ns=frame.t_ns,
-            t_decoded_mono_ns=item.t_decoded_mono_ns,
+            t_arrival_mono_ns=item.t_arrival_mono_ns,
             tracks=tracks,
             detection=output.detection,
             image=frame.image,  # read-only: shared with the outputs
         )
         for worker in self._workers.values():
             worker.submit_update(update)
-        self._counters.processed(tracks, (time.monotonic_ns() - item.t_decoded_mono_ns) / 1e6)
+        self._counters.processed(tracks, (time.monotonic_ns() - item.t_arrival_mono_ns) / 1e6)
         self._last_processed_mono = time.monotonic()
         self._log_track_events(tracks)
         if not self._ready:

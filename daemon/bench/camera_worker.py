@@ -8,7 +8,8 @@ endpoints) and stops after ``frames``; the worker prints one JSON line with this
 - ``fps``: frames processed per second after the warm-up;
 - ``dropped``: frames a camera at the clip's rate would have sent in that time but the daemon did
   not take (the file source waits instead of dropping, so the shortfall is counted);
-- ``latency_ms_p50`` / ``p99``: frame decoded -> update published, of the slowest output, over
+- ``latency_ms_p50`` / ``p99``: frame due (when a camera would have delivered it, ``CapturedFrame``)
+  -> update published, of the slowest output, over
   every frame of the measured window; ``outputs``: each output's own (and what it published,
   dropped and failed), which says which one is the slowest;
 - ``cpu_ms_per_frame``: the process's CPU per frame (decoder, pipeline, outputs), and

@@ -11,7 +11,7 @@ docs/performance.md, thirty-second session). Before them, in the same run, a dec
 measures the reader's CPU per frame; the workers measure the pipeline's. The report:
 
 - ``cameras``: per camera, achieved ``fps``, ``dropped`` frames, ``latency_ms_p50`` / ``p99``
-  (frame decoded -> published), CPU and RSS (``camera_worker.py``);
+  (frame due -> published), CPU and RSS (``camera_worker.py``);
 - in total: ``decode_cpu_ms_per_frame`` (decode-only pass), ``pipeline_cpu_ms_per_frame`` (mean over
   the cameras), ``cpu_ms_per_frame`` (whole processes, outputs included), ``rss_mb`` (the sum),
   ``rss_growth_percent_worst`` (the largest camera's growth from a minute in to the end: a soak)

@@ -257,7 +257,7 @@ def add_cameras_command(subparsers) -> None:
         help="N cameras as deployed (one daemon process each, paced at the clip's rate) vs the CPU limit",
         description="Run --count daemons at once, one per camera as the dronekey@.service template "
         "deploys them, each reading --source paced at its frame rate with every output on, for "
-        "--seconds. Per camera: achieved fps, dropped frames, latency p50/p99 (decoded -> published), "
+        "--seconds. Per camera: achieved fps, dropped frames, latency p50/p99 (frame due -> published), "
         "CPU per frame, RSS. In total: decode-only and pipeline-only CPU per frame (measured in the same "
         "run), RSS, and the CPU-bound limit: frames per second the cores can do given those two.",
     )

@@ -79,7 +79,7 @@ def measure_decode(
 
 
 def worst_latency(app: DaemonApp, meter: Meter) -> tuple[float, float, dict]:
-    """Worst p50 and p99 over the outputs (decoded -> published, of every update after ``meter``'s
+    """Worst p50 and p99 over the outputs (frame arrived -> published, of every update after ``meter``'s
     start stamp: the whole measured window, ``SinkStats.latency_histogram``), and per output."""
     per_sink = {}
     for name, worker in app.outputs.items():

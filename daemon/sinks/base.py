@@ -34,7 +34,8 @@ class FrameUpdate:
     camera_id : the daemon's camera id (Zenoh key segment, MCAP frame ids).
     frame_index : source frame number.
     t_ns : frame timestamp, integer ns (Unix epoch for live sources, stream PTS for files).
-    t_decoded_mono_ns : ``time.monotonic_ns()`` when the frame left the decoder (latency origin).
+    t_arrival_mono_ns : ``time.monotonic_ns()`` when the frame arrived (latency origin): when it left
+        the decoder, or for a paced file when a camera would have delivered it (``CapturedFrame``).
     tracks : the tracks updated or predicted at this frame (possibly empty).
     detection : the keypoint model's answer on this frame, or None when it reported no drone.
     image : the frame's pixels (``dronekey.frame_image``; a BGR array is wrapped), read-only and
@@ -45,7 +46,7 @@ class FrameUpdate:
     camera_id: str
     frame_index: int
     t_ns: int
-    t_decoded_mono_ns: int
+    t_arrival_mono_ns: int
     tracks: tuple[Track, ...] = ()
     detection: KeypointDetection | None = None
     image: FrameImage | None = None
@@ -179,7 +180,7 @@ class SinkWorker:
                 if kind == "update":
                     self.sink.handle_update(payload)
                     self.stats.published += 1
-                    lat = (time.monotonic_ns() - payload.t_decoded_mono_ns) / 1e6
+                    lat = (time.monotonic_ns() - payload.t_arrival_mono_ns) / 1e6
                     self.stats.latencies_ms.append(lat)
                     self.stats.latency_histogram.add(lat)
                 else:

@@ -57,10 +57,14 @@ class ReadResult:
 
 @dataclass(frozen=True, slots=True)
 class CapturedFrame:
-    """A frame and the ``time.monotonic_ns()`` at which it left the decoder (latency origin)."""
+    """A frame and the ``time.monotonic_ns()`` at which it arrived (the latency origin).
+
+    A live source's frame arrives when it leaves the decoder; a paced (``realtime``) finite source's
+    when a camera would have delivered it, its due time on the pacing clock, so that a decoder or a
+    queue running late counts in the latency rather than moving its origin."""
 
     frame: Frame
-    t_decoded_mono_ns: int
+    t_arrival_mono_ns: int
 
 
 def valid_bgr(img: object) -> bool:

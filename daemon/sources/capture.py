@@ -276,14 +276,18 @@ class Capture:
         finally:
             self.queue.wake()
 
-    def _accept(self, result: ReadResult, t_offset_ns: int = 0) -> CapturedFrame:
+    def _accept(
+        self, result: ReadResult, t_offset_ns: int = 0, due_mono_ns: int | None = None
+    ) -> CapturedFrame:
+        """The read frame numbered and stamped: it arrives now, or at ``due_mono_ns`` (a paced
+        frame's due time, ``CapturedFrame``)."""
         self._corrupt += result.corrupt
         self._next_index += result.corrupt  # keep indices equal to the source's frame numbers
         frame = Frame(self._next_index, result.t_ns + t_offset_ns, result.image)
         self._next_index += 1
         self._frames += 1
         self._last_frame_mono = time.monotonic()
-        return CapturedFrame(frame, time.monotonic_ns())
+        return CapturedFrame(frame, time.monotonic_ns() if due_mono_ns is None else due_mono_ns)
 
     def _run_finite(self) -> None:
         self._set_state(SourceState.STREAMING)
@@ -317,19 +321,22 @@ class Capture:
                 t_offset_ns = last_t_ns + interval_ns - result.t_ns
                 restarted = False
             t_ns = result.t_ns + t_offset_ns
+            due_mono_ns = None
             if self.config.realtime:  # release the frame when a camera would have delivered it
                 if pace_origin is None:
                     start = pace_start(time.monotonic(), interval_ns, self.config.realtime_phase)
                     pace_origin = (start, t_ns)
-                delay = pace_origin[0] + (t_ns - pace_origin[1]) / 1e9 - time.monotonic()
+                due_s = pace_origin[0] + (t_ns - pace_origin[1]) / 1e9
+                due_mono_ns = round(due_s * 1e9)  # the latency origin: a late decoder or queue counts
+                delay = due_s - time.monotonic()
                 if delay > 0 and self._stop.wait(delay):
                     return
-            # Back-pressure: wait for room first, so the latency origin is when the frame is handed
-            # over, not how far the decoder ran ahead of the pipeline.
+            # Back-pressure: wait for room first, so that an unpaced frame's latency origin is when it
+            # is handed over, not how far the decoder ran ahead of the pipeline.
             if not self.queue.wait_for_room(self._stop):
                 return
             last_t_ns = t_ns
-            self.queue.put(self._accept(result, t_offset_ns), self._stop)
+            self.queue.put(self._accept(result, t_offset_ns, due_mono_ns), self._stop)
 
     def _run_live(self) -> None:
         failures = 0

@@ -195,10 +195,23 @@ def test_realtime_phase_releases_frames_on_the_monotonic_clocks_frame_grid(media
     capture = Capture(VideoFileReader(media / "h264.mp4"), config)
     time.sleep(0.0137)  # start off the grid
     capture.start()
-    released = [item.t_decoded_mono_ns for item in take(capture, 20)]
+    released = [item.t_arrival_mono_ns for item in take(capture, 20)]
     offsets = (np.array(released) - round(phase * interval_ns)) % interval_ns
     offsets = np.where(offsets > interval_ns / 2, offsets - interval_ns, offsets)  # wrapped to +-half
     assert abs(np.median(offsets)) < 5e6, offsets / 1e6
+
+
+def test_a_paced_frame_arrives_when_it_is_due_however_late_it_is_handed_over(media):
+    """A paced frame's latency origin is its due time on the pacing clock: behind a consumer three
+    times slower than the clip, the origins stay one frame interval apart while the frames are
+    handed over ever later, so the lateness counts in the latency instead of moving its origin."""
+    config = SourceConfig(uri="x", realtime=True, queue_size=1)
+    capture = Capture(VideoFileReader(media / "h264.mp4"), config)
+    capture.start()
+    frames = drain(capture, delay_s=3 / FPS)
+    origins = np.array([item.t_arrival_mono_ns for item in frames])
+    np.testing.assert_allclose(np.diff(origins), 1e9 / FPS, atol=1e3)  # the grid, not the hand-over
+    assert time.monotonic_ns() - origins[-1] > 0.5e9  # the last frame was due long before it was taken
 
 
 def test_pace_start_is_the_next_grid_instant_of_the_phase_or_now_without_one():

@@ -62,7 +62,7 @@ def test_a_sink_worker_counts_every_update_past_its_recent_window():
     try:
         t0 = time.monotonic_ns()
         for i in range(2100):
-            worker.submit_update(FrameUpdate(camera_id="cam0", frame_index=i, t_ns=i, t_decoded_mono_ns=t0))
+            worker.submit_update(FrameUpdate(camera_id="cam0", frame_index=i, t_ns=i, t_arrival_mono_ns=t0))
     finally:
         worker.close(timeout_s=30.0)
     stats = worker.stats

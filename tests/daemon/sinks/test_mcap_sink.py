@@ -86,7 +86,7 @@ def update(i: int, *, n_tracks: int = 2, image: np.ndarray | None = None, t0_ns:
         camera_id="cam0",
         frame_index=i,
         t_ns=t_ns,
-        t_decoded_mono_ns=time.monotonic_ns(),
+        t_arrival_mono_ns=time.monotonic_ns(),
         tracks=tuple(track(k + 1, t_ns) for k in range(n_tracks)),
         detection=KeypointDetection(KEYPOINTS, 0.95, (500, 200, 256)),
         image=image,

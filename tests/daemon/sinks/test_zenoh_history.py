@@ -75,7 +75,7 @@ def lost(frame_update: FrameUpdate, track_id: int) -> FrameUpdate:
         frame_update.camera_id,
         frame_update.frame_index,
         frame_update.t_ns,
-        frame_update.t_decoded_mono_ns,
+        frame_update.t_arrival_mono_ns,
         tracks,
     )
 
@@ -93,7 +93,7 @@ def publish_picture(sink: ZenohSink) -> None:
         if i == 6:
             update = lost(update, 2)
         elif i > 6:
-            update = FrameUpdate("cam0", i, update.t_ns, update.t_decoded_mono_ns, update.tracks[::2])
+            update = FrameUpdate("cam0", i, update.t_ns, update.t_arrival_mono_ns, update.tracks[::2])
         sink.handle_update(update)
         if i in (2, 5, 8):
             sink.handle_status(status(i))
