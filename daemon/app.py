@@ -58,7 +58,7 @@ _SHUTDOWN_BUDGET_S = 4.5  # of the 5 s that SIGTERM allows; the signal guard enf
 class Pipeline(Protocol):
     """What the runner needs of ``dronekey.pipeline.TrackingPipeline``."""
 
-    def process(self, frame: Frame) -> Any: ...
+    def process(self, frame: Frame, late: bool = False) -> Any: ...
 
     def info(self) -> dict: ...
 
@@ -302,8 +302,10 @@ class DaemonApp:
         width, height = frame.size
         if (width, height) != self._resolution:
             self._prepare(width, height)
+        late_ms = self.config.tracking.late_after_ms
+        late = late_ms is not None and time.monotonic_ns() - item.t_arrival_mono_ns > late_ms * 1e6
         try:
-            output = self._pipeline.process(frame)
+            output = self._pipeline.process(frame, late=late)
         except Exception as exc:  # one bad frame must not end a service that runs for months
             self._counters.failed(f"{type(exc).__name__}: {exc}")
             if self._counters.errors % _PIPELINE_ERROR_LOG_EVERY == 1:

@@ -81,7 +81,8 @@ class PipelineOutput:
     measurement : that raw PnP pose, or None.
     mode : "track" (``detection`` came from a track's crop), "acquire" (from the whole-frame
         search), "predicted" (a frame between two measured ones, ``measure_every``: the tracks
-        predicted, nothing detected) or "none".
+        predicted, nothing detected), "late" (the same for a frame taken late,
+        ``TrackingPipeline.process``) or "none".
     rejection : why the best candidate gave no pose, when nothing did.
     timings_ms : wall time of each stage.
     measured : every detection that became a pose this frame, best first.
@@ -325,6 +326,7 @@ class TrackingPipeline:
             camera, self.spec, tracker, keypoint_sigma_px, max_reprojection_frac, plausibility
         )
         self.frames = 0
+        self._predicted_run = 0  # frames predicted in a row since the last measured one
         self.helper_cpu_s = 0.0  # CPU seconds spent on the helper thread (the early saliency passes)
         # The early saliency passes run on one long-lived thread (OpenCV and numpy release the GIL,
         # so it uses a second core). Not a thread per pass: OpenCV keeps the per-thread data of every
@@ -352,8 +354,14 @@ class TrackingPipeline:
             "range_std_floor": self.poses.tracker.config.range_std_floor,
         }
 
-    def process(self, frame: Frame) -> PipelineOutput:
-        """Run every stage on one frame (frames must come in time order)."""
+    def process(self, frame: Frame, late: bool = False) -> PipelineOutput:
+        """Run every stage on one frame (frames must come in time order).
+
+        ``late``: the frame was taken late (the daemon's ``tracking.late_after_ms``). It is then
+        predicted instead of measured (``PipelineOutput.mode`` "late"), as a frame between two
+        measured ones is, when the stride's conditions hold (``_may_predict``), so that after a slow
+        frame the pipeline catches up instead of carrying its lateness into the next frames. Never
+        more than ``max(1, measure_every)`` frames in a row go unmeasured."""
         w, h = frame.size
         if (w, h) != self.camera.size:
             cw, ch = self.camera.size
@@ -361,11 +369,16 @@ class TrackingPipeline:
         self.frames += 1
         timings: dict[str, float] = {}
         t0 = time.perf_counter()
-        if self._between_measurements():
+        between = self.measure_every > 1 and self.frames % self.measure_every != 0
+        if (between or late) and self._predicted_run < self.measure_every and self._may_predict():
             tracks = self.poses.tracker.advance(frame.t_ns)
             self._previous_image = frame.image
+            self._predicted_run += 1
             timings["total"] = _ms(t0)
-            return PipelineOutput(tuple(tracks), None, None, "predicted", None, timings)
+            return PipelineOutput(
+                tuple(tracks), None, None, "predicted" if between else "late", None, timings
+            )
+        self._predicted_run = 0
         due = self._search_due()
         early = self._helper.submit(_timed, self.localizer.saliency, frame.image) if due else None
         measured, regions, rejections, state = self._track_crops(frame, w, h)
@@ -404,16 +417,13 @@ class TrackingPipeline:
             tuple(measured),
         )
 
-    def _between_measurements(self) -> bool:
-        """Whether this frame falls between two measured ones (``measure_every``): not a multiple of
-        the stride, no search due, every live track confirmed and its last hit sure of its crop
-        (presence at least ``LocalizerConfig.wide_look_presence``: a crop the network doubts may
-        be cut from a range gone wrong, and is measured again on the next frame)."""
-        return (
-            self.measure_every > 1
-            and self.frames % self.measure_every != 0
-            and not self._search_due()
-            and self.poses.tracker.all_confirmed(self.localizer.config.wide_look_presence)
+    def _may_predict(self) -> bool:
+        """Whether this frame may be predicted instead of measured (between two measured ones,
+        ``measure_every``, or taken late): no search due, every live track confirmed and its last
+        hit sure of its crop (presence at least ``LocalizerConfig.wide_look_presence``: a crop the
+        network doubts may be cut from a range gone wrong, and is measured again on the next frame)."""
+        return not self._search_due() and self.poses.tracker.all_confirmed(
+            self.localizer.config.wide_look_presence
         )
 
     def _search_due(self) -> bool:

@@ -25,6 +25,9 @@ class BenchSetup:
         what the averaging costs on a box, measured).
     front_back_path : another front/back classifier (``model.front_back_path``): what it costs.
     measure_every : overrides ``tracking.measure_every`` (the measurement stride) when set.
+    late_after_ms : overrides ``tracking.late_after_ms`` (frames taken late are predicted) when set.
+    decode_ahead : True sets ``source.realtime_decode_ahead``: paced frames decoded before they are
+        due, their decode not in the latency (every paced figure before the thirty-third session).
     """
 
     source: Path
@@ -36,6 +39,8 @@ class BenchSetup:
     mirror_average: bool = True
     front_back_path: Path | None = None
     measure_every: int | None = None
+    decode_ahead: bool = False
+    late_after_ms: float | None = None
 
     def check(self) -> None:
         """Raise ``BenchError`` naming the first missing input file."""
@@ -79,6 +84,7 @@ class BenchSetup:
             "model.threads": (self.model_threads, "--model-threads"),
             "model.front_back_path": (self.front_back_path, "--front-back"),
             "tracking.measure_every": (self.measure_every, "--measure-every"),
+            "tracking.late_after_ms": (self.late_after_ms, "--late-after"),
         }
         overrides.update(
             {key: (str(v) if isinstance(v, Path) else v, flag) for key, (v, flag) in optional.items() if v}
@@ -87,6 +93,8 @@ class BenchSetup:
             overrides["model.front_back"] = (False, "--no-front-back")
         if not self.mirror_average:
             overrides["model.mirror_average"] = (False, "--no-mirror-average")
+        if self.decode_ahead:
+            overrides["source.realtime_decode_ahead"] = (True, "--decode-ahead")
         if outputs is not None:
             mcap_dir, udp_port = outputs
             overrides.update(

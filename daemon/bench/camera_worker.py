@@ -19,6 +19,8 @@ endpoints) and stops after ``frames``; the worker prints one JSON line with this
   ``rss_growth_percent`` from there to the end (a soak's figure), and ``rss_trend_percent`` the
   same along the line fitted to the resident set of every 100th frame from there to the end (not
   decided by the allocator's swing at two single samples);
+- ``modes``: the pipeline's frames by ``PipelineOutput.mode``, the warm-up's included ("late": taken
+  later than ``tracking.late_after_ms`` and predicted);
 - ``malloc_arenas``: the cap on glibc's malloc arenas in force, as the daemon's entry point sets it
   (``dronekey.daemon.malloc_arenas``; null where the C library is not glibc).
 
@@ -89,6 +91,7 @@ def run_camera(
         "rss_growth_percent": growth_percent(meter.settled.rss_mb, meter.end.rss_mb),
         "rss_trend_percent": jsonable(trend_percent(meter.rss_stamps)),  # null for a short run
         "outputs": jsonable(outputs),
+        "modes": dict(meter.modes),
     }
 
 
@@ -108,6 +111,8 @@ def main(argv: list[str] | None = None) -> int:
         args.get("mirror_average", True),
         Path(args["front_back_path"]) if args.get("front_back_path") else None,
         args.get("measure_every"),
+        args.get("decode_ahead", False),
+        args.get("late_after_ms"),
     )
     try:
         phase = args.get("realtime_phase")

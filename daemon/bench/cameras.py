@@ -7,7 +7,9 @@ together and run ``seconds`` each, delivering frames in the phase ``phase`` name
 ``source.realtime_phase``): a camera's latency depends on whether the others' frames arrive at the
 same instant, which a run paced from each process's own start left to chance (measured, the phase
 moves the p99 less than the box's own speed does, which the decode pass below shows:
-docs/performance.md, thirty-second session). Before them, in the same run, a decode-only pass
+docs/performance.md, thirty-second session). Each frame is decoded once it is due, as a camera's
+compressed stream is, so its decode counts in the latency (``decode_ahead``: before it is due,
+every paced figure before the thirty-third session). Before them, in the same run, a decode-only pass
 measures the reader's CPU per frame; the workers measure the pipeline's. The report:
 
 - ``cameras``: per camera, achieved ``fps``, ``dropped`` frames, ``latency_ms_p50`` / ``p99``
@@ -76,6 +78,8 @@ def _worker_command(
         "mirror_average": setup.mirror_average,
         "front_back_path": str(setup.front_back_path) if setup.front_back_path else None,
         "measure_every": setup.measure_every,
+        "decode_ahead": setup.decode_ahead,
+        "late_after_ms": setup.late_after_ms,
         "camera": camera_id,
         "frames": frames,
         "warmup": warmup,
@@ -165,6 +169,8 @@ def run_cameras_bench(
         "seconds": seconds,
         "clip_fps": round(clip_fps, 3),
         "phase": phase,
+        "decode_ahead": setup.decode_ahead,
+        "late_after_ms": setup.late_after_ms,
         "cameras": cameras,
         "fps_total": round(fps_total, 2),
         "dropped_total": sum(c["dropped"] for c in cameras),

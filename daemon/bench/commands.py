@@ -64,6 +64,8 @@ def _setup(args: argparse.Namespace) -> BenchSetup:
         not args.no_mirror_average,
         args.front_back,
         args.measure_every,
+        args.decode_ahead,
+        args.late_after,
     )
 
 
@@ -172,6 +174,21 @@ def _common_arguments(parser: argparse.ArgumentParser) -> None:
         help="measure steadily tracked drones on every N-th frame only, the tracks predicted between "
         "(tracking.measure_every; default: the daemon's, 1)",
     )
+    parser.add_argument(
+        "--late-after",
+        type=positive_float,
+        default=None,
+        metavar="MS",
+        help="predict instead of measure a frame the pipeline takes this many ms after it arrived "
+        "(tracking.late_after_ms; default: the daemon's)",
+    )
+    parser.add_argument(
+        "--decode-ahead",
+        action="store_true",
+        help="paced runs: decode each frame before it is due, so its decode is not in the latency "
+        "(source.realtime_decode_ahead; every paced figure before the thirty-third session was taken "
+        "so); default: decoded once due, as a camera's compressed stream is",
+    )
 
 
 def add_pipeline_command(subparsers) -> None:
@@ -222,6 +239,8 @@ def _camera_lines(report: dict) -> str:
         )
     keys = (
         "phase",
+        "decode_ahead",
+        "late_after_ms",
         "fps_total",
         "dropped_total",
         "decode_cpu_ms_per_frame",

@@ -113,9 +113,9 @@ class Meter:
     def info(self) -> dict:
         return self.pipeline.info()
 
-    def process(self, frame):
+    def process(self, frame, late=False):
         started, helpers = time.thread_time(), getattr(self.pipeline, "helper_cpu_s", 0.0)
-        output = self.pipeline.process(frame)
+        output = self.pipeline.process(frame, late=late)
         if self.start is not None and self.end is None:
             # the pipeline thread's CPU and its helper threads' (the early saliency pass)
             helpers = getattr(self.pipeline, "helper_cpu_s", 0.0) - helpers

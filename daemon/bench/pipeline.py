@@ -167,6 +167,8 @@ def run_pipeline_bench(
             "front_back": str(keypoints.heading_model.path) if keypoints.heading_model else None,
             "mirror_average": keypoints.mirror_average,
             "measure_every": flat.pipeline.measure_every,
+            "decode_ahead": setup.decode_ahead,
+            "late_after_ms": setup.late_after_ms,
             "cpus": psutil.cpu_count(),
             "warmup_frames": warmup,
             "modes": dict(flat.modes),

@@ -57,6 +57,13 @@ class SourceConfig(Section):
         "in a known phase: 0 for all, together, as genlocked cameras do; k/N for N cameras, evenly "
         "spread); null: paced from the first frame read, so in whatever phase the process started",
     )
+    realtime_decode_ahead: bool = Field(
+        False,
+        description="with realtime: decode each frame before it is due and hand it over when it is due "
+        "(a file's privilege: its decode is not in the latency; the behaviour before the thirty-third "
+        "session); false: decode a frame only once it is due, as a camera's compressed stream arrives, so "
+        "that its decode counts in the frame-to-publish latency as it would for that camera",
+    )
     loop: bool = Field(False, description="restart a file, image folder or sim at its end")
     queue_size: int = Field(2, ge=1, le=256, description="frames buffered from live sources (drop oldest)")
     stall_timeout_s: Seconds = Field(

@@ -41,6 +41,15 @@ class TrackingConfig(Section):
         "tracks predicted and published on the frames between (1: every frame, as shipped; 2 lets three "
         "cameras share the 2-core box at 30 FPS, at the accuracy cost docs/evaluation.md gives)",
     )
+    late_after_ms: float | None = Field(
+        None,
+        gt=0,
+        le=10000,
+        description="a frame the pipeline takes this long after it arrived (ms) is predicted instead of "
+        "measured, as a frame between two measured ones is (the tracks confirmed and sure, no search due, "
+        "never more than max(1, measure_every) frames unmeasured in a row), so that after a slow frame "
+        "the pipeline catches up instead of passing its lateness on to the next frames; null: never",
+    )
     max_search_candidates: int = Field(
         2, ge=0, le=16, description="crops a search for more drones may check (0: no such search)"
     )

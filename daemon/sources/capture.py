@@ -12,7 +12,9 @@ Policy depends only on whether the source is live:
   and restarts at its end with ``loop`` (timestamps keep increasing across passes). Paced frames
   are released from the first frame read on, or, with ``realtime_phase``, on the frame-rate grid
   of the system's monotonic clock (one clock for every process: several replayed cameras on one
-  box then deliver in a phase that is chosen, not left to when each process started).
+  box then deliver in a phase that is chosen, not left to when each process started). A paced
+  frame arrives (its latency origin) when it is due, and is decoded only then, as a camera's
+  compressed stream is, unless ``realtime_decode_ahead`` lets the file decode it beforehand.
 
 Corrupt frames (undecodable or malformed) are counted and skipped. ``busy_for_s`` tells how long
 the thread has been inside one reader call, so the runner can stop petting the systemd watchdog
@@ -297,7 +299,14 @@ class Capture:
         passes = 0
         last_t_ns: int | None = None
         pace_origin: tuple[float, int] | None = None  # (monotonic s, frame t_ns) of the first frame
+        decode_when_due = self.config.realtime and not self.config.realtime_decode_ahead
         while not self._stop.is_set():
+            if decode_when_due and pace_origin is not None and last_t_ns is not None:
+                # A camera's compressed frame arrives when it is due: decode it then, not ahead.
+                due_s = pace_origin[0] + (last_t_ns + interval_ns - pace_origin[1]) / 1e9
+                delay = due_s - time.monotonic()
+                if delay > 0 and self._stop.wait(delay):
+                    return
             with self._busy():
                 result = self.reader.read()
             if result.image is None:

@@ -13,7 +13,7 @@ from test_bench import common
 CAMERA_KEYS = {
     "camera", "frames", "fps", "clip_fps", "dropped", "latency_ms_p50", "latency_ms_p99",
     "cpu_ms_per_frame", "pipeline_cpu_ms_per_frame", "rss_mb", "rss_mb_settled", "rss_growth_percent",
-    "rss_trend_percent", "malloc_arenas", "outputs", "realtime_phase",
+    "rss_trend_percent", "malloc_arenas", "outputs", "realtime_phase", "modes",
 }  # fmt: skip
 
 
@@ -32,6 +32,7 @@ def test_two_cameras_report_each_and_the_cpu_limit(assets):
     report = json.loads(result.stdout)
     assert report["count"] == 2 and [c["camera"] for c in report["cameras"]] == ["cam0", "cam1"]
     assert report["phase"] == "staggered" and [c["realtime_phase"] for c in report["cameras"]] == [0.0, 0.5]
+    assert report["decode_ahead"] is False  # the default: decoded once due, as a camera's stream is
     assert all(c["malloc_arenas"] == 2 for c in report["cameras"])  # as dronekey-daemon caps them
     for cam in report["cameras"]:
         assert set(cam) == CAMERA_KEYS
@@ -58,12 +59,13 @@ def test_two_cameras_report_each_and_the_cpu_limit(assets):
 
 
 def test_table_and_bad_input(assets, tmp_path):
-    result = cameras(*common(assets), "--count", "1", "--seconds", "1")
+    result = cameras(*common(assets), "--count", "1", "--seconds", "1", "--decode-ahead")
     assert result.returncode == 0, result.stderr
     lines = result.stdout.splitlines()
     assert lines[0].split()[:3] == ["camera", "fps", "dropped"] and lines[1].startswith("cam0")
     assert any(line.startswith("cpu_limit_fps") for line in lines)
     assert "phase                     aligned" in lines  # the default: every camera at the same instant
+    assert "decode_ahead              True" in lines
     bad = cameras("--source", str(tmp_path / "absent.mp4"), "--count", "0")
     assert bad.returncode == 2 and "--count" in bad.stderr
     bad = cameras("--source", str(tmp_path / "absent.mp4"), "--phase", "random")
@@ -72,6 +74,15 @@ def test_table_and_bad_input(assets, tmp_path):
     assert missing.returncode == 1
     expected = f"dronekey-bench cameras: error: --source: no such file: {tmp_path / 'absent.mp4'}"
     assert missing.stderr.strip() == expected
+
+
+def test_decode_ahead_goes_through_the_bench_setups_overrides(assets):
+    from dronekey.daemon.bench.bench_setup import BenchSetup
+
+    setup = BenchSetup(assets / "clip.mp4")
+    assert setup.config(10, realtime=True).source.realtime_decode_ahead is False
+    ahead = BenchSetup(assets / "clip.mp4", decode_ahead=True).config(10, realtime=True)
+    assert ahead.source.realtime_decode_ahead is True
 
 
 def test_camera_phases_aligned_staggered_and_free():
@@ -114,7 +125,7 @@ def test_a_camera_that_falls_behind_stops_at_the_run_time():
     from dronekey.daemon.bench.meter import Meter
 
     class SlowPipeline:
-        def process(self, frame):
+        def process(self, frame, late=False):
             time.sleep(0.01)
             return SimpleNamespace(mode="track")
 
@@ -154,7 +165,7 @@ def test_the_memory_trend_is_the_fitted_line_not_two_samples():
     assert trend_percent(flat[:2]) != trend_percent(flat[:2])  # NaN: two stamps fit no trend
 
     class Pipeline:
-        def process(self, frame):
+        def process(self, frame, late=False):
             return SimpleNamespace(mode="track")
 
     meter = Meter(1000, 50, "trend", rss=True, settle=250, stop=threading.Event())

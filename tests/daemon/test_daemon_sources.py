@@ -214,6 +214,33 @@ def test_a_paced_frame_arrives_when_it_is_due_however_late_it_is_handed_over(med
     assert time.monotonic_ns() - origins[-1] > 0.5e9  # the last frame was due long before it was taken
 
 
+class _TimedReader(VideoFileReader):
+    """A file reader that notes when each decode starts (``time.monotonic_ns()``)."""
+
+    def __init__(self, path: Path) -> None:
+        super().__init__(path)
+        self.read_starts: list[int] = []
+
+    def read(self):
+        self.read_starts.append(time.monotonic_ns())
+        return super().read()
+
+
+@pytest.mark.parametrize("ahead", [False, True])
+def test_a_paced_frame_is_decoded_once_it_is_due_unless_decoded_ahead(media, ahead):
+    """A paced frame is decoded once it is due, as a camera's compressed stream is, so its decode
+    counts in the latency; ``realtime_decode_ahead`` decodes it a frame interval before instead."""
+    reader = _TimedReader(media / "h264.mp4")
+    capture = Capture(reader, SourceConfig(uri="x", realtime=True, realtime_decode_ahead=ahead))
+    capture.start()
+    items = take(capture, 12)
+    lead_ms = (np.array([item.t_arrival_mono_ns for item in items[1:]]) - reader.read_starts[1:12]) / 1e6
+    if ahead:
+        assert np.all(lead_ms > 10), lead_ms  # decoded while the previous frame waited its turn
+    else:
+        assert np.all(lead_ms <= 0.5), lead_ms  # decoded only once due
+
+
 def test_pace_start_is_the_next_grid_instant_of_the_phase_or_now_without_one():
     interval_ns = 33_333_333
     assert pace_start(12.3456, interval_ns, None) == 12.3456

@@ -1,5 +1,6 @@
 """Localiser and pipeline plumbing: candidate search on real rendered frames, boxes, empty frames."""
 
+import itertools
 import threading
 from dataclasses import replace
 
@@ -224,6 +225,29 @@ def test_a_measurement_stride_measures_confirmed_drones_every_other_frame_and_pu
     assert all(modes[i] != "predicted" for i in range(len(modes)) if (i + 1) % 6 == 0)  # searches
     assert modes[confirmed_at + 1 :].count("predicted") >= (len(modes) - confirmed_at) // 3
     assert max(errors) < 0.5, errors
+
+
+def test_a_frame_taken_late_is_predicted_but_never_two_in_a_row_without_a_stride():
+    """Shipped model, one drone (seq13), every frame taken late (``process(late=True)``): before the
+    track is confirmed every frame is measured; from then on a late frame is predicted (mode
+    "late"), but never two in a row (``measure_every`` 1), nor a search frame (every 6th), and
+    every frame publishes the confirmed track near the drone."""
+    pipeline = TrackingPipeline(preset_camera(), drone=SPEC)
+    modes, errors = [], []
+    for i, rf in enumerate(build_sequence("seq13", seed=101, frames=40)):
+        out = pipeline.process(Frame(i, i * 33_333_333, rf.image), late=True)
+        modes.append(out.mode)
+        held = [t for t in out.tracks if t.status == TrackStatus.CONFIRMED]
+        if out.mode == "late":
+            assert out.detection is None and not out.measured and held
+        if held:
+            errors.append(min(np.linalg.norm(t.position_m - rf.record.drone.translation) for t in held))
+    first = modes.index("late")
+    assert first < 20 and "predicted" not in modes
+    assert all(not (a == b == "late") for a, b in itertools.pairwise(modes)), modes
+    assert all(modes[i] != "late" for i in range(len(modes)) if (i + 1) % 6 == 0)  # searches
+    assert modes[first:].count("late") >= (len(modes) - first) // 3
+    assert errors and max(errors) < 0.5, errors
 
 
 def test_the_verifier_looks_at_tentative_tracks_only():

@@ -395,7 +395,7 @@ def score_sequence(
             rows["R_track"].append(np.full((3, 3), np.nan))
             rows["t_track"].append(np.full(3, np.nan))
         det = out.detection
-        if out.mode == "predicted":  # nothing was looked for: no detection to score
+        if out.mode in ("predicted", "late"):  # nothing was looked for: no detection to score
             rows["front_back"].append(np.nan)
             rows["axis"].append(np.nan)
             continue
