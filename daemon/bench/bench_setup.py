@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 
 from dronekey.daemon.bench.errors import BenchError
@@ -41,6 +41,16 @@ class BenchSetup:
     measure_every: int | None = None
     decode_ahead: bool = False
     late_after_ms: float | None = None
+
+    def to_json(self) -> dict:
+        """Every field as a JSON value (paths as strings), for a worker process (``from_json``)."""
+        return {f.name: _json_value(getattr(self, f.name)) for f in fields(self)}
+
+    @classmethod
+    def from_json(cls, data: dict) -> BenchSetup:
+        """The setup ``to_json`` wrote."""
+        paths = {"source", "calib", "model", "front_back_path"}
+        return cls(**{k: Path(v) if k in paths and v is not None else v for k, v in data.items()})
 
     def check(self) -> None:
         """Raise ``BenchError`` naming the first missing input file."""
@@ -112,3 +122,7 @@ class BenchSetup:
             return load_config(None, overrides)
         except ConfigError as exc:
             raise BenchError(str(exc).splitlines()[0]) from None
+
+
+def _json_value(value: object) -> object:
+    return str(value) if isinstance(value, Path) else value

@@ -1,7 +1,8 @@
 """One camera of ``dronekey-bench cameras``: a daemon process as a ``dronekey@camN`` unit runs it.
 
 Run as ``python -m dronekey.daemon.bench.camera_worker JSON`` by ``cameras.py``; JSON holds the
-source, calibration, model, camera id, frames, warm-up and the clip's frame rate. The daemon reads
+bench's setup (``BenchSetup.to_json``: source, calibration, model and the overrides), camera id,
+frames, warm-up, the clip's frame rate and the camera's phase. The daemon reads
 the clip paced at its frame rate (``source.realtime``, looping) with every output on (local
 endpoints) and stops after ``frames``; the worker prints one JSON line with this camera's figures:
 
@@ -34,7 +35,6 @@ from __future__ import annotations
 import json
 import logging
 import sys
-from pathlib import Path
 
 from dronekey.daemon.bench.bench_setup import BenchSetup
 from dronekey.daemon.bench.daemon_run import local_endpoints, run_daemon, signal_monitor
@@ -101,19 +101,7 @@ def main(argv: list[str] | None = None) -> int:
     args = json.loads((argv or sys.argv[1:])[0])
     logging.basicConfig(level=logging.WARNING, stream=sys.stderr)
     quiet_native_logs(verbose=False)
-    setup = BenchSetup(
-        Path(args["source"]),
-        Path(args["calib"]) if args.get("calib") else None,
-        Path(args["model"]) if args.get("model") else None,
-        args.get("decode_threads"),
-        args.get("model_threads"),
-        args.get("front_back", True),
-        args.get("mirror_average", True),
-        Path(args["front_back_path"]) if args.get("front_back_path") else None,
-        args.get("measure_every"),
-        args.get("decode_ahead", False),
-        args.get("late_after_ms"),
-    )
+    setup = BenchSetup.from_json(args["setup"])
     try:
         phase = args.get("realtime_phase")
         report = run_camera(setup, args["camera"], args["frames"], args["warmup"], args["clip_fps"], phase)

@@ -69,17 +69,7 @@ def _worker_command(
     realtime_phase: float | None,
 ) -> list[str]:
     args = {
-        "source": str(setup.source),
-        "calib": str(setup.calib) if setup.calib else None,
-        "model": str(setup.model) if setup.model else None,
-        "decode_threads": setup.decode_threads,
-        "model_threads": setup.model_threads,
-        "front_back": setup.front_back,
-        "mirror_average": setup.mirror_average,
-        "front_back_path": str(setup.front_back_path) if setup.front_back_path else None,
-        "measure_every": setup.measure_every,
-        "decode_ahead": setup.decode_ahead,
-        "late_after_ms": setup.late_after_ms,
+        "setup": setup.to_json(),
         "camera": camera_id,
         "frames": frames,
         "warmup": warmup,

@@ -59,6 +59,12 @@ def pace_start(now_s: float, interval_ns: int, phase: float | None) -> float:
     return offset_s + math.ceil((now_s - offset_s) / interval_s) * interval_s
 
 
+def _due_s(pace_origin: tuple[float, int], t_ns: int) -> float:
+    """When a paced frame of stream time ``t_ns`` is due on the monotonic clock (s), given the
+    pacing origin (monotonic s, stream time ns of the first frame)."""
+    return pace_origin[0] + (t_ns - pace_origin[1]) / 1e9
+
+
 class FrameQueue:
     """Bounded frame queue: drop-oldest (live) or blocking (finite) when full.
 
@@ -291,6 +297,11 @@ class Capture:
         self._last_frame_mono = time.monotonic()
         return CapturedFrame(frame, time.monotonic_ns() if due_mono_ns is None else due_mono_ns)
 
+    def _wait_until(self, when_s: float) -> bool:
+        """Sleep until ``when_s`` on the monotonic clock; False when stopped meanwhile."""
+        delay = when_s - time.monotonic()
+        return not (delay > 0 and self._stop.wait(delay))
+
     def _run_finite(self) -> None:
         self._set_state(SourceState.STREAMING)
         interval_ns = round(1e9 / (self.reader.frame_rate or 30.0))
@@ -301,12 +312,12 @@ class Capture:
         pace_origin: tuple[float, int] | None = None  # (monotonic s, frame t_ns) of the first frame
         decode_when_due = self.config.realtime and not self.config.realtime_decode_ahead
         while not self._stop.is_set():
+            # A camera's compressed frame arrives when it is due: decode it then, not ahead.
+            next_due_s = None
             if decode_when_due and pace_origin is not None and last_t_ns is not None:
-                # A camera's compressed frame arrives when it is due: decode it then, not ahead.
-                due_s = pace_origin[0] + (last_t_ns + interval_ns - pace_origin[1]) / 1e9
-                delay = due_s - time.monotonic()
-                if delay > 0 and self._stop.wait(delay):
-                    return
+                next_due_s = _due_s(pace_origin, last_t_ns + interval_ns)
+            if next_due_s is not None and not self._wait_until(next_due_s):
+                return
             with self._busy():
                 result = self.reader.read()
             if result.image is None:
@@ -335,10 +346,9 @@ class Capture:
                 if pace_origin is None:
                     start = pace_start(time.monotonic(), interval_ns, self.config.realtime_phase)
                     pace_origin = (start, t_ns)
-                due_s = pace_origin[0] + (t_ns - pace_origin[1]) / 1e9
+                due_s = _due_s(pace_origin, t_ns)
                 due_mono_ns = round(due_s * 1e9)  # the latency origin: a late decoder or queue counts
-                delay = due_s - time.monotonic()
-                if delay > 0 and self._stop.wait(delay):
+                if not self._wait_until(due_s):
                     return
             # Back-pressure: wait for room first, so that an unpaced frame's latency origin is when it
             # is handed over, not how far the decoder ran ahead of the pipeline.
