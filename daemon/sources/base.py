@@ -122,3 +122,9 @@ class FrameReader(ABC):
     def bundled_camera(self) -> tuple[CameraModel, str] | None:
         """A calibration that comes with the source (sidecar file, simulator camera) and where from."""
         return None
+
+    def spare(self) -> FrameReader | None:
+        """A new, unopened reader of the same source with the same settings, or None: a looping
+        capture opens it ahead of the pass's end (``dronekey.daemon.sources.next_pass``), so that the
+        loop costs no reopen; None (the default) reopens this reader at the loop instead."""
+        return None

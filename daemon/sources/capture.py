@@ -9,7 +9,8 @@ Policy depends only on whether the source is live:
   attempts in a row it is *failed*.
 - **finite** (file, image folder, sim): every frame is delivered in order; the reader waits for
   room in the queue (back-pressure, no drops), paces itself at the stream's rate with ``realtime``,
-  and restarts at its end with ``loop`` (timestamps keep increasing across passes). Paced frames
+  and restarts at its end with ``loop`` (timestamps keep increasing across passes; the next pass
+  is opened ahead while the current one plays where the reader can, ``next_pass``). Paced frames
   are released from the first frame read on, or, with ``realtime_phase``, on the frame-rate grid
   of the system's monotonic clock (one clock for every process: several replayed cameras on one
   box then deliver in a phase that is chosen, not left to when each process started). A paced
@@ -40,6 +41,7 @@ from dronekey.daemon.sources.base import (
     SourceOpenError,
     SourceState,
 )
+from dronekey.daemon.sources.next_pass import NextPass
 from dronekey.types import Frame
 
 __all__ = ["Capture", "CaptureStats", "FrameQueue", "pace_start"]
@@ -170,6 +172,7 @@ class Capture:
         self._gave_up = False
         self._crashed = False
         self._opened = False
+        self._next_pass: NextPass | None = None
         self._thread = threading.Thread(target=self._run, name="capture", daemon=True)
         self._watchdog = threading.Thread(target=self._watch, name="capture-watchdog", daemon=True)
 
@@ -304,13 +307,23 @@ class Capture:
 
     def _run_finite(self) -> None:
         self._set_state(SourceState.STREAMING)
+        decode_when_due = self.config.realtime and not self.config.realtime_decode_ahead
+        # The next pass opens while this one plays: a camera never reopens (next_pass.py).
+        self._next_pass = NextPass(self.reader) if self.config.loop else None
+        try:
+            self._play_finite(decode_when_due)
+        finally:
+            if self._next_pass is not None:
+                self._next_pass.discard()
+
+    def _play_finite(self, decode_when_due: bool) -> None:
+        """``_run_finite``'s passes over the source (see the module docstring)."""
         interval_ns = round(1e9 / (self.reader.frame_rate or 30.0))
         t_offset_ns = 0
         restarted = False
         passes = 0
         last_t_ns: int | None = None
         pace_origin: tuple[float, int] | None = None  # (monotonic s, frame t_ns) of the first frame
-        decode_when_due = self.config.realtime and not self.config.realtime_decode_ahead
         while not self._stop.is_set():
             # A camera's compressed frame arrives when it is due: decode it then, not ahead.
             next_due_s = None
@@ -327,9 +340,14 @@ class Capture:
                     return
                 if self._frames == 0:
                     raise SourceOpenError(f"{self.reader.description} gave no frame to loop over")
+                opened = self._next_pass.take() if self._next_pass is not None else None
                 self.reader.close()
-                with self._busy():
-                    self.reader.open()
+                if opened is not None:
+                    self.reader = opened
+                else:
+                    with self._busy():
+                        self.reader.open()
+                self._next_pass = NextPass(self.reader)
                 restarted = True
                 passes += 1
                 level = logging.INFO if passes == 1 else logging.DEBUG

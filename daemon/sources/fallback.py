@@ -59,6 +59,10 @@ class FirstThatOpens(FrameReader):
         for reader in self.readers:
             reader.close()
 
+    def spare(self) -> FrameReader | None:
+        """The spare of the reader that opened (the next pass stays with it), or None before any did."""
+        return self.opened.spare() if self.opened is not None else None
+
     @property
     def frame_rate(self) -> float | None:
         return self.opened.frame_rate if self.opened else None

@@ -238,6 +238,13 @@ class PyAVFileReader(FirstFramePeek, _PyAVReader):
     def bundled_camera(self) -> tuple[CameraModel, str] | None:
         return sidecar_camera(self.path)
 
+    def spare(self) -> PyAVFileReader:
+        """The same file with the same decoder settings, unopened (the next pass of a loop); a truncation
+        already reported is not reported again."""
+        other = PyAVFileReader(self.path, self._configured_threads, self.fast_decode)
+        other._warned_truncated = self._warned_truncated
+        return other
+
 
 class PyAVStreamReader(_PyAVReader):
     """An rtsp/http/tcp/udp stream through PyAV, with open and read timeouts."""

@@ -175,6 +175,47 @@ def test_loop_keeps_timestamps_increasing(media):
     assert capture.stats().corrupt == 0
 
 
+def test_a_loop_takes_the_next_pass_opened_ahead_and_a_stop_closes_it(media):
+    """A looping file's next pass is opened on a helper thread while the current one plays
+    (``NextPass``), so the capture thread never reopens the file at the loop: the reader after the
+    wrap-around is the spare, its first frame stamped one interval after the last; stopping closes
+    the spare of the pass that would have come next."""
+    path = media / "h264.mp4"
+    auto = FirstThatOpens([PyAVFileReader(path, decode_threads=2), VideoFileReader(path)])
+    assert auto.spare() is None  # nothing opened yet: no kind to follow
+    auto.open()
+    spare = auto.spare()
+    assert isinstance(spare, PyAVFileReader) and spare is not auto.opened
+    assert (spare.path, spare._configured_threads, spare.fast_decode) == (path, 2, True)
+    assert VideoFileReader(path).spare() is None  # OpenCV reopens at the loop, as before
+    auto.close()
+
+    first = PyAVFileReader(path)
+    capture = Capture(first, SourceConfig(uri="x", loop=True))
+    capture.start()
+    opened_ahead = []
+    frames = []
+    while len(frames) < 40:
+        item = capture.get(1.0)
+        assert item is not None, capture.state
+        frames.append(item.frame)
+        if len(frames) == 25:  # mid-pass: the next pass is already open, off the capture thread
+            pending = capture._next_pass
+            assert pending is not None and pending._thread is not None
+            pending._thread.join(5.0)
+            opened_ahead.append(pending._spare._container is not None)
+    assert opened_ahead == [True]
+    assert capture.reader is not first and first._container is None  # swapped in, the old pass closed
+    t_ns = np.diff([f.t_ns for f in frames])
+    np.testing.assert_allclose(t_ns, 1e9 / FPS, atol=1e6)  # no jump at the wrap-around
+    waiting = capture._next_pass
+    waiting._thread.join(5.0)
+    spare = waiting._spare
+    assert spare._container is not None
+    capture.stop()
+    assert spare._container is None and not capture._thread.is_alive()
+
+
 def test_decoder_threads_by_pixel_rate():
     assert pyav_decode_threads((1920, 1080), 30, configured=3) == 3
     assert pyav_decode_threads((640, 480), 30, None) == 1
