@@ -22,6 +22,7 @@ import sys
 from collections.abc import Iterator
 from pathlib import Path
 
+from dronekey.evaluation.config_overrides import OverrideError, config_with_overrides, parse_overrides
 from dronekey.evaluation.fusion import evaluate_fusion, fusion_table
 from dronekey.evaluation.keypoints import evaluate_keypoints
 from dronekey.evaluation.mot import DEFAULT_GATE_M, evaluate_mot, mot_table, pooled_table, pooled_to_dict
@@ -224,6 +225,7 @@ def _cmd_robustness(args: argparse.Namespace) -> int:
         if negative:
             raise _UsageError(f"--seeds must be >= 0, got {negative[0]}")
     width, height = _parse_size(args.size)
+    localizer, tracker = _robustness_configs(args)
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise _UsageError(f"--out must be a folder, got the file {out}")
@@ -253,17 +255,36 @@ def _cmd_robustness(args: argparse.Namespace) -> int:
             select=args.select,
             dither=args.dither,
             cue_free=args.cue_free,
-            localizer=LocalizerConfig(acquire_recut=args.acquire_recut),
-            tracker=TrackerConfig(
-                confirm_max_outliers=args.confirm_max_outliers,
-                heading_full_spread_px=args.heading_full_spread,
-            ),
+            localizer=localizer,
+            tracker=tracker,
             measure_every=args.measure_every,
         )
     except ImportError as exc:  # --background photos without scikit-image / scikit-learn
         raise _UsageError(str(exc)) from None
     print(json.dumps(report.to_dict()) if args.json else report.table())
     return 0
+
+
+def _robustness_configs(args: argparse.Namespace) -> tuple[LocalizerConfig, TrackerConfig]:
+    """The localiser's and tracker's settings: the shipped ones, the dedicated flags', then every
+    ``--localizer`` / ``--tracker KEY=VALUE`` (which win)."""
+    try:
+        localizer = config_with_overrides(
+            LocalizerConfig,
+            parse_overrides(args.localizer or [], LocalizerConfig, "--localizer"),
+            "--localizer",
+            acquire_recut=args.acquire_recut,
+        )
+        tracker = config_with_overrides(
+            TrackerConfig,
+            parse_overrides(args.tracker or [], TrackerConfig, "--tracker"),
+            "--tracker",
+            confirm_max_outliers=args.confirm_max_outliers,
+            heading_full_spread_px=args.heading_full_spread,
+        )
+    except OverrideError as exc:
+        raise _UsageError(str(exc)) from None
+    return localizer, tracker
 
 
 _ROBUSTNESS_HELP = """\
@@ -446,6 +467,20 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="PX",
         help="measure a heading confidence bounded by the drone's size: none below hubs PX / 2 apart, "
         "sure allowed from PX (TrackerConfig.heading_full_spread_px, 0 as shipped)",
+    )
+    r.add_argument(
+        "--tracker",
+        action="append",
+        metavar="KEY=VALUE",
+        help="measure any tracker setting (a field of TrackerConfig, e.g. confirm_min_presence=0.9; "
+        "repeat for several); the report's settings list what was changed",
+    )
+    r.add_argument(
+        "--localizer",
+        action="append",
+        metavar="KEY=VALUE",
+        help="measure any localiser setting (a field of LocalizerConfig, e.g. max_candidates=4; repeat "
+        "for several)",
     )
     r.add_argument(
         "--measure-every",

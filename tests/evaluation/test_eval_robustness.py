@@ -429,6 +429,11 @@ def test_cli_json_then_table(tmp_path, capsys):
         (["--select", "s99*"], "select ['s99*'] matches no sequence"),
         (["--front-back", "/nonexistent.onnx"], "--front-back not found"),
         (["--front-back", "deep", "--select", "s99*"], "matches no sequence"),  # a shipped name is no file
+        (["--tracker", "confirm_hitz=3"], "--tracker: TrackerConfig has no setting 'confirm_hitz'; known: "),
+        (["--tracker", "confirm_hits"], "--tracker takes KEY=VALUE, got 'confirm_hits'"),
+        (["--tracker", "confirm_hits=0"], "--tracker: TrackerConfig.confirm_hits must be an integer >= 1"),
+        (["--localizer", "use_motion=maybe"], "--localizer use_motion must be true or false, got 'maybe'"),
+        (["--localizer", "max_candidates=2.5"], "--localizer max_candidates must be an integer, got '2.5'"),
     ],
 )
 def test_bad_arguments_are_one_line(extra, message, tmp_path, capsys):
@@ -524,3 +529,53 @@ def test_summary_counts_frames_whose_range_lies_within_one_and_two_stated_deviat
     assert out["range_doubt_frames"] == 4
     assert out["range_within_1sd_pct"] == pytest.approx(50.0)
     assert out["range_within_2sd_pct"] == pytest.approx(75.0)
+
+
+def test_cli_any_tracker_or_localizer_setting_is_measured_recorded_and_named(tmp_path, capsys):
+    """``--tracker`` / ``--localizer KEY=VALUE`` set any field of the two configs for the run; the
+    report's settings list the fields that differ from the shipped ones, and the table names them."""
+    argv = ["robustness", "--out", str(tmp_path), "--quick", "--frames", "2", "--size", "320x180"]
+    argv += ["--drone-free", "1", "--select", "*nodrone*"]
+    assert main([*argv, "--json"]) == 0
+    settings = json.loads(capsys.readouterr().out)["settings"]
+    assert settings["tracker_changed"] == {} and settings["localizer_changed"] == {}  # as shipped
+    extra = ["--tracker", "confirm_min_presence=0.9", "--tracker", "max_tracks=2"]
+    extra += ["--localizer", "max_candidates=4", "--localizer", "acquire_recut=null"]
+    extra += ["--confirm-max-outliers", "1"]
+    assert main([*argv, *extra, "--json"]) == 0
+    settings = json.loads(capsys.readouterr().out)["settings"]
+    changed = {"max_tracks": 2, "confirm_max_outliers": 1, "confirm_min_presence": 0.9}
+    assert settings["tracker_changed"] == changed
+    assert settings["localizer_changed"] == {"max_candidates": 4}  # null is the shipped value
+    assert main([*argv, *extra]) == 0
+    first = capsys.readouterr().out.splitlines()[0]
+    assert "localizer max_candidates=4" in first and "tracker max_tracks=2, confirm_max_outliers=1" in first
+
+
+def test_overrides_are_read_as_the_fields_types():
+    from dronekey.evaluation.config_overrides import (
+        OverrideError,
+        changed_settings,
+        config_with_overrides,
+        parse_overrides,
+    )
+    from dronekey.perception.localizer import LocalizerConfig
+    from dronekey.tracking.tracker_config import TrackerConfig
+
+    pairs = ["use_motion=off", "acquire_recut=0.25", "max_candidates= 3 ", "presence_threshold=0.6"]
+    got = parse_overrides(pairs, LocalizerConfig, "-L")
+    assert got == {"use_motion": False, "acquire_recut": 0.25, "max_candidates": 3, "presence_threshold": 0.6}
+    assert type(got["max_candidates"]) is int and type(got["presence_threshold"]) is float
+    assert parse_overrides(["acquire_recut=None"], LocalizerConfig, "-L") == {"acquire_recut": None}
+    with pytest.raises(OverrideError, match="-L: max_candidates given twice"):
+        parse_overrides(["max_candidates=3", "max_candidates=4"], LocalizerConfig, "-L")
+    with pytest.raises(OverrideError, match="-L presence_threshold must be a number, got 'nan'"):
+        parse_overrides(["presence_threshold=nan"], LocalizerConfig, "-L")
+    with pytest.raises(OverrideError, match="-L max_candidates must be an integer, got 'null'"):
+        parse_overrides(["max_candidates=null"], LocalizerConfig, "-L")  # not a field that may be None
+    config = config_with_overrides(TrackerConfig, {"max_tracks": 2}, "-T", max_tracks=3, confirm_hits=4)
+    assert (config.max_tracks, config.confirm_hits) == (2, 4)  # the overrides win over the base
+    with pytest.raises(OverrideError, match=r"^-T: .*presence_threshold"):
+        config_with_overrides(LocalizerConfig, {"presence_threshold": 1.5}, "-T")
+    assert changed_settings(config, TrackerConfig) == {"confirm_hits": 4, "max_tracks": 2}
+    assert changed_settings(None, TrackerConfig) == {}

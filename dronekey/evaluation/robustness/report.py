@@ -138,7 +138,12 @@ class RobustnessReport:
                 if st.get("measure_every", 1) > 1
                 else ""
             )
-            + (", every drone cue-free (no front/back cue)" if st.get("cue_free") else ""),
+            + (", every drone cue-free (no front/back cue)" if st.get("cue_free") else "")
+            + "".join(
+                f", {part} {', '.join(f'{k}={v}' for k, v in st[key].items())}"
+                for part, key in (("localizer", "localizer_changed"), ("tracker", "tracker_changed"))
+                if st.get(key)
+            ),
         ]
         if not st.get("model_has_heading_head", True):
             lines.append(
