@@ -340,7 +340,8 @@ class Capture:
                     return
                 if self._frames == 0:
                     raise SourceOpenError(f"{self.reader.description} gave no frame to loop over")
-                opened = self._next_pass.take() if self._next_pass is not None else None
+                with self._busy():  # the helper may still be opening it
+                    opened = self._next_pass.take() if self._next_pass is not None else None
                 self.reader.close()
                 if opened is not None:
                     self.reader = opened
