@@ -169,6 +169,7 @@ class DaemonApp:
         self._pipeline_rate = RateMeter()
         self._last_processed_mono: float | None = None
         self._ready = False
+        self.frame_arrival_mono_ns: int | None = None  # the frame in the pipeline now: when it arrived
         self._stopping = False
         self._confirmed: set[int] = set()
         self._last_watchdog_mono = 0.0
@@ -303,6 +304,7 @@ class DaemonApp:
         if (width, height) != self._resolution:
             self._prepare(width, height)
         late_ms = self.config.tracking.late_after_ms
+        self.frame_arrival_mono_ns = item.t_arrival_mono_ns  # read by a metering pipeline (bench)
         late = late_ms is not None and time.monotonic_ns() - item.t_arrival_mono_ns > late_ms * 1e6
         try:
             output = self._pipeline.process(frame, late=late)

@@ -18,6 +18,7 @@ from dronekey.daemon.bench.cameras import PHASES, run_cameras_bench
 from dronekey.daemon.bench.daemon_run import signal_monitor
 from dronekey.daemon.bench.errors import BenchError, BenchInterruptedError
 from dronekey.daemon.bench.pipeline import run_pipeline_bench
+from dronekey.daemon.bench.slowest_frames import slowest_line
 from dronekey.daemon.bench.soak import run_soak
 from dronekey.daemon.malloc_arenas import limit_malloc_arenas
 from dronekey.daemon.sources.opencv_readers import quiet_native_logs
@@ -98,7 +99,11 @@ def _run_pipeline_command(args: argparse.Namespace) -> int:
     )
     if report is None:
         return status
-    print(json.dumps(report, indent=2) if args.json else _table(report, PIPELINE_TABLE_KEYS, 23))
+    if args.json:
+        print(json.dumps(report, indent=2))
+    else:
+        print(_table(report, PIPELINE_TABLE_KEYS, 23))
+        print(slowest_line(report["details"]["paced"]["slowest"]))
     return 0
 
 

@@ -16,6 +16,7 @@ from tqdm import tqdm
 
 from dronekey.daemon.app import default_pipeline_factory
 from dronekey.daemon.bench.errors import BenchError
+from dronekey.daemon.bench.slowest_frames import FrameTiming
 from dronekey.daemon.sinks.latency_histogram import LatencyHistogram
 
 __all__ = ["MIB", "Meter", "Stamp", "growth_percent", "peak_rss_mb", "trend_percent"]
@@ -70,6 +71,10 @@ class Meter:
     that many seconds after the start if ``frames`` have not come by then (a camera that cannot
     keep up with its clip), and ``stop`` (the daemon's stop event) is set: the run lasts its time.
 
+    With ``record_frames`` each frame of the window is kept in ``frame_timings`` (``FrameTiming``:
+    its wait from arrival to the pipeline, read from the app's ``frame_arrival_mono_ns``, its time in
+    the pipeline, mode and stages), for ``slowest_frames``.
+
     ``app`` (set by ``run_daemon``) is the daemon whose outputs' latency histograms are copied at
     the ``start`` stamp (``latency_start``), so that a run's percentiles leave the warm-up out.
     """
@@ -83,6 +88,7 @@ class Meter:
         settle: int | None = None,
         seconds: float | None = None,
         stop: threading.Event | None = None,
+        record_frames: bool = False,
     ) -> None:
         self.total = frames
         self.warmup = warmup
@@ -102,6 +108,8 @@ class Meter:
         self.latency_start: dict[str, LatencyHistogram] = {}  # each output's, at the start stamp
         self.pipeline_cpu_s = 0.0  # CPU time in process() (its thread and helpers), after warm-up
         self._rss = rss
+        self._record_frames = record_frames
+        self.frame_timings: list[FrameTiming] = []  # with record_frames: each frame of the window
         self._process = psutil.Process()
         self._bar = tqdm(total=frames, desc=desc, unit="frame", file=sys.stderr, leave=False)
 
@@ -115,11 +123,14 @@ class Meter:
 
     def process(self, frame, late=False):
         started, helpers = time.thread_time(), getattr(self.pipeline, "helper_cpu_s", 0.0)
+        taken_ns = time.monotonic_ns()
         output = self.pipeline.process(frame, late=late)
         if self.start is not None and self.end is None:
             # the pipeline thread's CPU and its helper threads' (the early saliency pass)
             helpers = getattr(self.pipeline, "helper_cpu_s", 0.0) - helpers
             self.pipeline_cpu_s += time.thread_time() - started + helpers
+            if self._record_frames:
+                self._record(taken_ns, output)
         self.frames += 1
         self.modes[output.mode] += 1
         if self.frames == self.warmup:
@@ -143,6 +154,14 @@ class Meter:
             self._keep_rss(self.last)
         self._bar.update(1)
         return output
+
+    def _record(self, taken_ns: int, output) -> None:
+        """Keep the frame's wait (from its arrival, as the daemon app saw it) and pipeline time."""
+        arrival_ns = getattr(self.app, "frame_arrival_mono_ns", None)
+        wait_ms = (taken_ns - arrival_ns) / 1e6 if arrival_ns is not None else math.nan
+        stages = dict(getattr(output, "timings_ms", {}) or {})
+        pipeline_ms = (time.monotonic_ns() - taken_ns) / 1e6
+        self.frame_timings.append(FrameTiming(wait_ms, pipeline_ms, getattr(output, "mode", "?"), stages))
 
     def _keep_rss(self, stamp: Stamp) -> None:
         """Keep a stamp taken after ``settled`` and up to ``end`` for the memory trend."""

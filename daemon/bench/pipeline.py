@@ -8,7 +8,9 @@ Four passes over the same file, one report:
    CPU milliseconds per frame, the figure least disturbed by other load on the machine);
 3. *paced*: the daemon with ``source.realtime`` (frames released at the clip's frame rate, as a camera
    delivers them) -> ``latency_ms_p50`` / ``latency_ms_p99``, from the frame leaving the decoder to
-   its update being published, of the slowest output (as the daemon's status message reports it);
+   its update being published, of the slowest output (as the daemon's status message reports it),
+   and where its slowest 2 % of frames spent their time (``details.paced.slowest``,
+   ``slowest_frames.py``: waiting to be taken or in the pipeline, searches, stages);
 4. *model*: ``KeypointModel.inference`` alone at batch 1 and the model's input size, with the
    pipeline's intra-op threads -> ``model_fps``.
 
@@ -37,6 +39,7 @@ from dronekey.daemon.bench.cpu_limit import cpu_limit_fps, usable_cores
 from dronekey.daemon.bench.daemon_run import check_signals, local_endpoints, run_daemon, signal_monitor
 from dronekey.daemon.bench.errors import BenchError
 from dronekey.daemon.bench.meter import Meter, peak_rss_mb
+from dronekey.daemon.bench.slowest_frames import slowest_frames
 from dronekey.daemon.signals import SignalMonitor
 from dronekey.daemon.sources import FrameReader, SourceOpenError, make_reader
 
@@ -133,7 +136,7 @@ def run_pipeline_bench(
     limit = cpu_limit_fps(decode_cpu_ms, pipeline_cpu_ms, cores)
 
     LOG.info("paced pass: %d frames at the clip's frame rate", latency_frames)
-    paced = Meter(latency_frames, warmup, "paced")
+    paced = Meter(latency_frames, warmup, "paced", record_frames=True)
     with local_endpoints() as outputs:
         paced_app = run_daemon(setup.config(latency_frames, outputs, realtime=True), paced, signals)
     p50, p99, per_sink = worst_latency(paced_app, paced)
@@ -182,6 +185,7 @@ def run_pipeline_bench(
                 "fps": round(pn / pwall_s, 2),
                 "cpu_percent": round(100.0 * pcpu_s / pwall_s, 1),
                 "outputs": per_sink,
+                "slowest": slowest_frames(paced.frame_timings),
             },
         },
     }

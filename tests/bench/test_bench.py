@@ -78,12 +78,22 @@ def test_pipeline_reports_every_figure(assets):
         assert output["published"] == 12 and output["errors"] == 0
     assert details["model_threads"] == 1 and details["decode_threads"] >= 1
     assert details["front_back"].endswith("dronekey_heading.onnx")  # the shipped classifier, by default
+    slowest = details["paced"]["slowest"]  # of the 8 paced frames after the warm-up, the slowest 2 %: one
+    assert (slowest["frames"], slowest["of_frames"]) == (1, 8)
+    assert slowest["wait_ms_mean"] >= 0 and slowest["pipeline_ms_mean"] > 0
+    assert slowest["latency_ms_mean"] == pytest.approx(
+        slowest["wait_ms_mean"] + slowest["pipeline_ms_mean"], abs=0.02
+    )
+    assert sum(slowest["modes"].values()) == 1 and "track_crop" in slowest["stages_ms_mean"]
 
 
 def test_pipeline_table(assets):
     result = bench("pipeline", *common(assets), "--frames", "10", "--latency-frames", "6", "--warmup", "2")
     assert result.returncode == 0, result.stderr
-    assert {line.split()[0] for line in result.stdout.splitlines()} == PIPELINE_KEYS
+    lines = result.stdout.splitlines()
+    assert {line.split()[0] for line in lines[:-1]} == PIPELINE_KEYS
+    slowest = r"slowest 2 % \(1 of 4 paced frames, [\d.]+ ms and more\): [\d.]+ ms on average = "
+    assert re.match(slowest, lines[-1])
 
 
 def test_pipeline_thread_overrides_reach_the_daemon(assets):
@@ -180,3 +190,24 @@ def test_sampler_reports_its_rate():
     assert out["samples"] == 10 and out["input"] == [128, 128]
     assert out["samples_per_s"] > 0 and out["cpu_ms_per_sample"] > 0 and 0 <= out["with_drone"] <= 1
     assert bench("sampler", "--samples", "0").returncode == 2  # argparse: one line, exit 2
+
+
+def test_slowest_frames_splits_the_tail_into_waiting_and_pipeline_time():
+    from dronekey.daemon.bench.slowest_frames import FrameTiming, slowest_frames, slowest_line
+
+    fast = [FrameTiming(2.0, 10.0, "track", {"track_crop": 9.0, "track": 1.0, "total": 10.0})] * 98
+    stages = {"track_crop": 12.0, "acquire": 30.0, "track": 3.0, "total": 45.0}
+    search = FrameTiming(5.0, 45.0, "track", stages)
+    backlog = FrameTiming(70.0, 12.0, "track", {"track_crop": 11.0, "track": 1.0, "total": 12.0})
+    got = slowest_frames([*fast[:40], backlog, *fast[40:], search])
+    assert (got["frames"], got["of_frames"], got["share"]) == (2, 100, 0.02)
+    assert got["latency_ms_min"] == 50.0 and got["latency_ms_mean"] == 66.0  # (82 + 50) / 2
+    assert (got["wait_ms_mean"], got["pipeline_ms_mean"]) == (37.5, 28.5)
+    assert got["searched"] == 1 and got["modes"] == {"track": 2}
+    assert got["stages_ms_mean"] == {"acquire": 15.0, "track": 2.0, "track_crop": 11.5}  # no search: 0 ms
+    assert slowest_line(got).startswith("slowest 2 % (2 of 100 paced frames, 50.0 ms and more): 66.0 ms")
+    assert slowest_frames([]) == {"frames": 0}
+    assert slowest_line({"frames": 0}) == "slowest frames: none measured"
+    assert slowest_frames(fast[:3], share=0.02)["frames"] == 1  # at least one
+    with pytest.raises(ValueError, match="share must be in \\(0, 1\\], got 0"):
+        slowest_frames(fast, share=0)
