@@ -49,7 +49,7 @@ class BenchSetup:
     @classmethod
     def from_json(cls, data: dict) -> BenchSetup:
         """The setup ``to_json`` wrote."""
-        paths = {"source", "calib", "model", "front_back_path"}
+        paths = {f.name for f in fields(cls) if "Path" in str(f.type)}
         return cls(**{k: Path(v) if k in paths and v is not None else v for k, v in data.items()})
 
     def check(self) -> None:

@@ -159,9 +159,8 @@ class Meter:
         """Keep the frame's wait (from its arrival, as the daemon app saw it) and pipeline time."""
         arrival_ns = getattr(self.app, "frame_arrival_mono_ns", None)
         wait_ms = (taken_ns - arrival_ns) / 1e6 if arrival_ns is not None else math.nan
-        stages = dict(getattr(output, "timings_ms", {}) or {})
         pipeline_ms = (time.monotonic_ns() - taken_ns) / 1e6
-        self.frame_timings.append(FrameTiming(wait_ms, pipeline_ms, getattr(output, "mode", "?"), stages))
+        self.frame_timings.append(FrameTiming(wait_ms, pipeline_ms, output.mode, dict(output.timings_ms)))
 
     def _keep_rss(self, stamp: Stamp) -> None:
         """Keep a stamp taken after ``settled`` and up to ``end`` for the memory trend."""

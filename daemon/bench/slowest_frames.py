@@ -42,7 +42,8 @@ def slowest_frames(timings: Sequence[FrameTiming], share: float = SLOWEST_SHARE)
         return {"frames": 0}
     total = np.array([t.wait_ms + t.pipeline_ms for t in timings])
     n = max(1, math.ceil(share * len(timings)))
-    slow = [timings[k] for k in np.argsort(-total, kind="stable")[:n]]
+    order = np.argsort(-total, kind="stable")[:n]
+    slow, latency = [timings[k] for k in order], total[order]
     stages = sorted({name for t in slow for name in t.stages_ms if name != "total"})
     # a stage a frame did not run counts as 0 ms in that stage's mean
     stage_means = {s: round(float(np.mean([t.stages_ms.get(s, 0.0) for t in slow])), 2) for s in stages}
@@ -50,8 +51,8 @@ def slowest_frames(timings: Sequence[FrameTiming], share: float = SLOWEST_SHARE)
         "share": share,
         "frames": n,
         "of_frames": len(timings),
-        "latency_ms_min": round(min(t.wait_ms + t.pipeline_ms for t in slow), 2),
-        "latency_ms_mean": round(float(np.mean([t.wait_ms + t.pipeline_ms for t in slow])), 2),
+        "latency_ms_min": round(float(latency.min()), 2),
+        "latency_ms_mean": round(float(latency.mean()), 2),
         "wait_ms_mean": round(float(np.mean([t.wait_ms for t in slow])), 2),
         "pipeline_ms_mean": round(float(np.mean([t.pipeline_ms for t in slow])), 2),
         "searched": sum("acquire" in t.stages_ms for t in slow),

@@ -34,6 +34,7 @@ class NextPass:
         self._spare = reader.spare()
         self._error: BaseException | None = None
         self._lock = threading.Lock()
+        self._opened = False  # the helper is done with the spare (opened or failed)
         self._discarded = False
         self._thread: threading.Thread | None = None
         if self._spare is not None:
@@ -41,14 +42,16 @@ class NextPass:
             self._thread.start()
 
     def _open(self) -> None:
-        assert self._spare is not None
+        spare = self._spare  # held here: ``discard`` may drop the attribute meanwhile
+        assert spare is not None
         try:
-            self._spare.open()
+            spare.open()
         except Exception as exc:  # the capture reopens its own reader and reports what that says
             self._error = exc
         with self._lock:
+            self._opened = True
             if self._discarded:
-                self._spare.close()
+                spare.close()
 
     def take(self) -> FrameReader | None:
         """The next pass's reader, opened (waits for the helper if it is still opening), or None when
@@ -67,6 +70,6 @@ class NextPass:
         """Close the spare, now or once its helper finishes opening it (the capture is stopping)."""
         with self._lock:
             self._discarded = True
-            if self._spare is not None and (self._thread is None or not self._thread.is_alive()):
-                self._spare.close()
-        self._spare = None
+            spare, self._spare = self._spare, None
+            if spare is not None and self._opened:  # else the helper closes it when it is done
+                spare.close()

@@ -6,6 +6,7 @@ stream reader; make_reader's choice (source.decoder) and its fallback to OpenCV;
 from __future__ import annotations
 
 import logging
+import threading
 import time
 from pathlib import Path
 
@@ -214,6 +215,30 @@ def test_a_loop_takes_the_next_pass_opened_ahead_and_a_stop_closes_it(media):
     assert spare._container is not None
     capture.stop()
     assert spare._container is None and not capture._thread.is_alive()
+
+
+def test_a_next_pass_discarded_while_it_opens_is_closed_once_opened(media):
+    """A capture that stops while the helper is still opening the next pass: the helper closes the
+    spare when it is done (no reader left open, no error on the helper thread)."""
+    from dronekey.daemon.sources.next_pass import NextPass
+
+    release = threading.Event()
+
+    class SlowToOpen(PyAVFileReader):
+        def open(self) -> None:
+            release.wait(5.0)
+            super().open()
+
+    class Reader(PyAVFileReader):
+        def spare(self) -> PyAVFileReader:
+            return SlowToOpen(self.path)
+
+    pending = NextPass(Reader(media / "h264.mp4"))
+    spare = pending._spare
+    pending.discard()  # still opening
+    release.set()
+    pending._thread.join(5.0)
+    assert not pending._thread.is_alive() and spare._container is None and pending._error is None
 
 
 def test_decoder_threads_by_pixel_rate():
