@@ -166,6 +166,12 @@ def build_parser() -> argparse.ArgumentParser:
         "passing in front of another, Mini 2 and Air 2S at 4-14 m; each has its instance_id in the JSON",
     )
     render.add_argument(
+        "--airframe",
+        metavar="NAME",
+        help="every drone of the swarm preset this airframe (mini2 or air2s), on the same paths; "
+        "default: the swarm's mix, which one camera cannot tell apart (it reads range from size)",
+    )
+    render.add_argument(
         "--cameras",
         metavar="N",
         type=_positive_int,
@@ -340,7 +346,7 @@ def _render(args: argparse.Namespace) -> int:
         raise UsageError("--out DIR is required with --preset")
     width, height = _size(args)
     codec = _video_codec(args, width, height)
-    if PRESETS[args.preset].multi_drone or args.cameras > 1 or args.drones is not None:
+    if PRESETS[args.preset].multi_drone or args.cameras > 1 or args.drones is not None or args.airframe:
         return _render_scene(args, width, height, codec)
     try:
         seq = build_sequence(**_scene_options(args, width, height), no_drone=args.no_drone)
@@ -386,10 +392,17 @@ def _render_scene(args: argparse.Namespace, width: int, height: int, codec: str)
             "--no-drone renders one camera of a single-drone preset; not with --cameras or swarm"
         )
     try:
-        scene = build_scene(**_scene_options(args, width, height), drones=args.drones, cameras=args.cameras)
+        scene = build_scene(
+            **_scene_options(args, width, height),
+            drones=args.drones,
+            cameras=args.cameras,
+            airframe=args.airframe,
+        )
     except (ValueError, OSError, ImportError) as exc:
-        message = str(exc).replace("drones must", "--drones must").replace("cameras must", "--cameras must")
-        message = message.replace("drones applies", "--drones applies")
+        message = str(exc)
+        for option in ("drones", "cameras", "airframe"):
+            message = message.replace(f"{option} must", f"--{option} must")
+            message = message.replace(f"{option} applies", f"--{option} applies")
         raise UsageError(_cli_message(message)) from None
     _check_output_folder(args.out)
     first = scene.views[0]

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dronekey.geometry.drone_spec import load_spec
+from dronekey.geometry.drone_spec import available_specs, load_spec
 from dronekey.geometry.rotations import ned_from_camera, rotation_from_euler_deg
 from dronekey.sim_replay.flight import CoordinatedFlight
 from dronekey.sim_replay.io.site import (
@@ -91,9 +91,11 @@ def camera_spacing_m(mean_range_m: float, n_cameras: int) -> float:
     return float(np.clip(0.75 * mean_range_m, 5.0, 50.0 / max(n_cameras - 1, 1)))
 
 
-def _plans(preset: Preset, seed: int, n_drones: int, range_scale: float) -> list[DronePlan]:
+def _plans(
+    preset: Preset, seed: int, n_drones: int, range_scale: float, airframe: str | None
+) -> list[DronePlan]:
     if preset.multi_drone:
-        return swarm_plans(seed, n_drones, range_scale)
+        return swarm_plans(seed, n_drones, range_scale, airframe)
     offsets = np.random.default_rng(seed).uniform(-1, 1, 8)  # == SyntheticSequence._offsets
 
     def path(t: float) -> tuple[np.ndarray, tuple[float, float, float]]:
@@ -173,11 +175,14 @@ def build_scene(
     cue_free: bool = False,
     drones: int | None = None,
     cameras: int = 1,
+    airframe: str | None = None,
 ) -> Scene:
     """Prepare a scene: any preset (its drones; ``drones`` of the swarm) seen by ``cameras`` cameras.
 
-    The keywords are ``synthetic_sequence.build_sequence``'s; ``drones`` (1-12, default 3) is for
-    multi-drone presets only; drone i's look is drawn from style seed ``style_seed + i``.
+    The keywords are ``synthetic_sequence.build_sequence``'s; ``drones`` (1-12, default 3) and
+    ``airframe`` (every drone of the swarm this spec, ``dronekey.geometry.drone_spec``; default the
+    swarm's mix) are for multi-drone presets only; drone i's look is drawn from style seed
+    ``style_seed + i``.
 
     Raises
     ------
@@ -189,6 +194,11 @@ def build_scene(
     p = PRESETS[preset]
     if drones is not None and not p.multi_drone:
         raise ValueError(f"drones applies to the swarm preset only; {preset!r} flies one drone")
+    if airframe is not None:
+        if not p.multi_drone:
+            raise ValueError(f"airframe applies to the swarm preset only; {preset!r} flies a {p.drone}")
+        if airframe not in available_specs():
+            raise ValueError(f"airframe must be one of {', '.join(available_specs())}, got {airframe!r}")
     n_drones = DEFAULT_DRONES if drones is None else int(drones)
     if not 1 <= n_drones <= MAX_DRONES:
         raise ValueError(f"drones must be 1-{MAX_DRONES}, got {n_drones}")
@@ -207,9 +217,8 @@ def build_scene(
     )
     source = background_source(conditions.background, backgrounds)
     times = np.arange(frames) / p.fps
-    scene_drones = [
-        _scene_drone(plan, times, p.fps, conditions) for plan in _plans(p, seed, n_drones, range_scale)
-    ]
+    plans = _plans(p, seed, n_drones, range_scale, airframe)
+    scene_drones = [_scene_drone(plan, times, p.fps, conditions) for plan in plans]
     camera = preset_camera(width, height, p.hfov_deg)
     rig = _rig(p, scene_drones, int(cameras))
     views = [

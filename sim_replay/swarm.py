@@ -79,11 +79,15 @@ def _figure_eight(centre: np.ndarray, size_m: float, period_s: float, phase: flo
     return path
 
 
-def swarm_plans(seed: int, n_drones: int, range_scale: float = 1.0) -> list[DronePlan]:
+def swarm_plans(
+    seed: int, n_drones: int, range_scale: float = 1.0, airframe: str | None = None
+) -> list[DronePlan]:
     """The ``n_drones`` (>= 1) drones of the swarm for scene seed ``seed``.
 
     ``range_scale`` multiplies every position (the drones keep their bearings, so the crossing and
-    the occlusion stay).
+    the occlusion stay). ``airframe`` (a spec name) makes every drone that airframe, on the same
+    paths; by default the swarm mixes Mini 2s and Air 2Ss, which one camera cannot tell apart
+    (docs/evaluation.md, "One camera, two airframes").
     """
     if n_drones < 1:
         raise ValueError(f"a swarm needs at least one drone, got {n_drones}")
@@ -110,6 +114,8 @@ def swarm_plans(seed: int, n_drones: int, range_scale: float = 1.0) -> list[Dron
         plans.append(DronePlan(i, drone, _straight(crossing, velocity, float(rng.uniform(3, 7)), r)))
     if range_scale != 1.0:
         plans = [DronePlan(p.instance_id, p.drone, _scaled(p.path, range_scale)) for p in plans]
+    if airframe is not None:
+        plans = [DronePlan(p.instance_id, airframe, p.path) for p in plans]
     return plans[:n_drones]
 
 

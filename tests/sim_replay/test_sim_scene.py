@@ -67,6 +67,26 @@ def test_swarm_has_several_instances_with_their_models(tmp_path):
     assert len({d["style_seed"] for d in doc["info"]["drones"]}) == 4
 
 
+def test_one_airframe_swarm_flies_the_mixed_swarms_paths(tmp_path):
+    """``--airframe`` changes the drones' spec, not their paths: the same positions, every instance the
+    one model, its hubs that model's."""
+    mixed, single = tmp_path / "mixed", tmp_path / "mini2"
+    common = ["--preset", "swarm", "--frames", "2", *SIZE, "--seed", "15"]
+    assert run_cli([*common, "--out", str(mixed)]) == 0
+    assert run_cli([*common, "--airframe", "mini2", "--out", str(single)]) == 0
+    a, b = load_sequence(mixed / "swarm.json"), load_sequence(single / "swarm.json")
+    assert {a.instance(i).model for i in a.instance_ids()} == {"mini2", "air2s"}
+    assert {b.instance(i).model for i in b.instance_ids()} == {"mini2"}
+    for fa, fb in zip(a.frames, b.frames, strict=True):
+        for da, db in zip(fa.drones, fb.drones, strict=True):
+            assert da.instance_id == db.instance_id
+            np.testing.assert_allclose(da.translation, db.translation)
+    air = next(i for i in a.instance_ids() if a.instance(i).model == "air2s")
+    first = (a.frames[0], b.frames[0])
+    spread = [np.ptp(next(d for d in f.drones if d.instance_id == air).keypoints_px[:, 0]) for f in first]
+    assert spread[1] < 0.8 * spread[0]  # a Mini 2 on the Air 2S's path: 213 against 302 mm
+
+
 def test_duplicate_instance_in_one_image_is_refused(tmp_path):
     assert run_cli(["--preset", "swarm", "--frames", "1", *SIZE, "--out", str(tmp_path)]) == 0
     path = tmp_path / "swarm.json"
@@ -109,6 +129,8 @@ def test_far_preset_sizes_and_scene_determinism():
         (["--preset", "swarm", "--drones", "13"], "--drones must be 1-12"),
         (["--preset", "seq13", "--cameras", "9"], "--cameras must be 1-8"),
         (["--preset", "swarm", "--no-drone"], "--no-drone"),
+        (["--preset", "seq13", "--airframe", "air2s"], "--airframe applies to the swarm preset only"),
+        (["--preset", "swarm", "--airframe", "mavic"], "--airframe must be one of air2s, mini2"),
     ],
 )
 def test_bad_scene_arguments_are_one_line(tmp_path, capsys, argv, message):
