@@ -277,3 +277,27 @@ def test_non_coplanar_spec_is_refused():
 def test_malformed_prior_is_a_programming_error():
     with pytest.raises(ValueError, match="prior"):
         PoseEstimator(CAMERA, SPEC).estimate(GOOD, prior=(np.eye(3), np.zeros(2)))
+
+
+@pytest.mark.parametrize("yaw", [0.0, 40.0, 90.0, 135.0])
+@pytest.mark.parametrize("elevation", [5.0, 20.0, 35.0])
+def test_one_view_cannot_tell_a_mini2_from_an_air2s(yaw, elevation):
+    """An Air 2S's hubs seen once fit a Mini 2's to a hundredth of a pixel, 0.69-0.74x as far (the
+    airframes' half-widths' and half-lengths' ratios) and turned by a few degrees: their rectangles'
+    aspects (0.78 and 0.72) trade against the attitude in a small image. So one camera reads an
+    unknown airframe's range no better than the airframes' size ratio (``airframe_range_span``),
+    and a mixed swarm is a fleet's job (docs/evaluation.md, "One camera, two airframes")."""
+    from dronekey.perception.planar_pnp import PlanarPnP
+
+    air2s = load_spec("air2s")
+    R = elevated(yaw, -6.0, 3.0, elevation)
+    t = np.array([0.4, -0.3, 8.0])
+    uv = CAMERA.project_body(air2s.keypoints_3d, R, t)
+    fits = {}
+    for spec in (air2s, SPEC):
+        candidates = PlanarPnP(CAMERA, np.asarray(spec.keypoints_3d)).solve(uv, refine=True)
+        fits[spec.name] = min(candidates, key=lambda c: geodesic_angle_deg(c.R, R))
+    assert fits["air2s"].rms_px < 1e-3 and fits["mini2"].rms_px < 0.05
+    ratios = np.abs(np.asarray(SPEC.keypoints_3d)[0, :2] / np.asarray(air2s.keypoints_3d)[0, :2])
+    assert ratios.min() - 0.005 <= np.linalg.norm(fits["mini2"].t) / np.linalg.norm(t) <= ratios.max() + 0.005
+    assert geodesic_angle_deg(fits["mini2"].R, R) < 6.0
