@@ -22,7 +22,12 @@ import sys
 from collections.abc import Iterator
 from pathlib import Path
 
-from dronekey.evaluation.config_overrides import OverrideError, config_with_overrides, parse_overrides
+from dronekey.evaluation.config_overrides import (
+    OverrideError,
+    changed_settings,
+    config_with_overrides,
+    parse_overrides,
+)
 from dronekey.evaluation.fusion import evaluate_fusion, fusion_table
 from dronekey.evaluation.keypoints import evaluate_keypoints
 from dronekey.evaluation.mot import DEFAULT_GATE_M, evaluate_mot, mot_table, pooled_table, pooled_to_dict
@@ -170,6 +175,11 @@ def _cmd_mot(args: argparse.Namespace) -> int:
         raise _UsageError(f"--gate must be a positive distance in metres, got {args.gate}")
     if args.video is not None and len(args.sequence) > 1:
         raise _UsageError("--video names one sequence's video: give one --sequence with it")
+    localizer, tracker = _pipeline_configs(args, {}, {})
+    changed = {
+        "localizer_changed": changed_settings(localizer, LocalizerConfig),
+        "tracker_changed": changed_settings(tracker, TrackerConfig),
+    }
     results = []
     for path in args.sequence:
         seq, frames = _load(Path(path), args.video)
@@ -181,14 +191,22 @@ def _cmd_mot(args: argparse.Namespace) -> int:
                 gate_m=args.gate,
                 progress=sys.stderr.isatty(),
                 mirror_average=not args.no_mirror_average,
+                tracker=tracker,
+                localizer=localizer,
             )
         )
-    if len(results) == 1:
-        print(json.dumps(results[0].to_dict()) if args.json else mot_table(results[0]))
-    elif args.json:
-        print(json.dumps(pooled_to_dict(results)))
-    else:
-        print(pooled_table(results))
+    if args.json:
+        out = results[0].to_dict() if len(results) == 1 else pooled_to_dict(results)
+        print(json.dumps({**out, "settings": changed}))
+        return 0
+    settings = [
+        f"{part} {', '.join(f'{k}={v}' for k, v in changed[f'{part}_changed'].items())}"
+        for part in ("localizer", "tracker")
+        if changed[f"{part}_changed"]
+    ]
+    if settings:
+        print("settings: " + "; ".join(settings) + "\n")
+    print(mot_table(results[0]) if len(results) == 1 else pooled_table(results))
     return 0
 
 
@@ -268,23 +286,55 @@ def _cmd_robustness(args: argparse.Namespace) -> int:
 def _robustness_configs(args: argparse.Namespace) -> tuple[LocalizerConfig, TrackerConfig]:
     """The localiser's and tracker's settings: the shipped ones, the dedicated flags', then every
     ``--localizer`` / ``--tracker KEY=VALUE`` (which win)."""
+    return _pipeline_configs(
+        args,
+        {"acquire_recut": args.acquire_recut},
+        {
+            "confirm_max_outliers": args.confirm_max_outliers,
+            "heading_full_spread_px": args.heading_full_spread,
+        },
+    )
+
+
+def _pipeline_configs(
+    args: argparse.Namespace, localizer_base: dict, tracker_base: dict
+) -> tuple[LocalizerConfig, TrackerConfig]:
+    """``LocalizerConfig`` and ``TrackerConfig`` from ``*_base`` and ``--localizer`` / ``--tracker
+    KEY=VALUE`` (which win); a bad pair is a usage error naming the flag, the key and the value."""
     try:
         localizer = config_with_overrides(
             LocalizerConfig,
             parse_overrides(args.localizer or [], LocalizerConfig, "--localizer"),
             "--localizer",
-            acquire_recut=args.acquire_recut,
+            **localizer_base,
         )
         tracker = config_with_overrides(
             TrackerConfig,
             parse_overrides(args.tracker or [], TrackerConfig, "--tracker"),
             "--tracker",
-            confirm_max_outliers=args.confirm_max_outliers,
-            heading_full_spread_px=args.heading_full_spread,
+            **tracker_base,
         )
     except OverrideError as exc:
         raise _UsageError(str(exc)) from None
     return localizer, tracker
+
+
+def _add_override_flags(parser: argparse.ArgumentParser) -> None:
+    """``--tracker`` and ``--localizer KEY=VALUE``, repeatable (``_pipeline_configs`` reads them)."""
+    parser.add_argument(
+        "--tracker",
+        action="append",
+        metavar="KEY=VALUE",
+        help="measure any tracker setting (a field of TrackerConfig, e.g. confirm_min_presence=0.9; "
+        "repeat for several); the report's settings list what was changed",
+    )
+    parser.add_argument(
+        "--localizer",
+        action="append",
+        metavar="KEY=VALUE",
+        help="measure any localiser setting (a field of LocalizerConfig, e.g. max_candidates=4; repeat "
+        "for several)",
+    )
 
 
 _ROBUSTNESS_HELP = """\
@@ -395,6 +445,7 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument(
         "--no-mirror-average", action="store_true", help="run each crop once (the daemon's default averages)"
     )
+    _add_override_flags(m)
     m.add_argument("--json", action="store_true", help="print one JSON object")
     m.set_defaults(func=_cmd_mot)
     f = sub.add_parser(
@@ -468,20 +519,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="measure a heading confidence bounded by the drone's size: none below hubs PX / 2 apart, "
         "sure allowed from PX (TrackerConfig.heading_full_spread_px, 0 as shipped)",
     )
-    r.add_argument(
-        "--tracker",
-        action="append",
-        metavar="KEY=VALUE",
-        help="measure any tracker setting (a field of TrackerConfig, e.g. confirm_min_presence=0.9; "
-        "repeat for several); the report's settings list what was changed",
-    )
-    r.add_argument(
-        "--localizer",
-        action="append",
-        metavar="KEY=VALUE",
-        help="measure any localiser setting (a field of LocalizerConfig, e.g. max_candidates=4; repeat "
-        "for several)",
-    )
+    _add_override_flags(r)
     r.add_argument(
         "--measure-every",
         type=int,

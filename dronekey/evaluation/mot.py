@@ -28,7 +28,9 @@ from tqdm import tqdm
 
 from dronekey.evaluation.pose import PoseErrors, pose_errors, rounded, sequence_spec
 from dronekey.geometry.rotations import quat_wxyz_to_matrix
+from dronekey.perception.localizer import LocalizerConfig
 from dronekey.pipeline import TrackingPipeline
+from dronekey.tracking.tracker_config import TrackerConfig
 from dronekey.types import PUBLISHED_STATUSES, Frame
 
 __all__ = [
@@ -93,13 +95,27 @@ def _distances(gt_t: np.ndarray, hyp_t: np.ndarray, gate_m: float) -> np.ndarray
 
 
 def evaluate_mot(
-    seq, frames, model_path=None, gate_m: float = DEFAULT_GATE_M, progress: bool = False, mirror_average=True
+    seq,
+    frames,
+    model_path=None,
+    gate_m: float = DEFAULT_GATE_M,
+    progress: bool = False,
+    mirror_average=True,
+    tracker: TrackerConfig | None = None,
+    localizer: LocalizerConfig | None = None,
 ) -> MotResult:
-    """Run the pipeline over ``frames`` (``SequenceFrame`` iterable) of the loaded ``seq`` and score it."""
+    """Run the pipeline over ``frames`` (``SequenceFrame`` iterable) of the loaded ``seq`` and score it.
+
+    ``tracker`` / ``localizer``: settings to measure instead of the shipped ones (None: shipped)."""
     if not gate_m > 0:
         raise ValueError(f"gate must be a positive distance in metres, got {gate_m}")
     pipeline = TrackingPipeline(
-        seq.camera, model_path, drone=sequence_spec(seq), mirror_average=mirror_average
+        seq.camera,
+        model_path,
+        drone=sequence_spec(seq),
+        mirror_average=mirror_average,
+        tracker=tracker,
+        localizer=localizer,
     )
     acc = mm.MOTAccumulator(auto_id=True)
     matched: dict[int, dict[str, list]] = {

@@ -84,3 +84,21 @@ def test_pooling_refuses_different_gates_and_results_without_matches():
         pooled_summary([a, b])
     with pytest.raises(ValueError, match="needs the results of evaluate_mot"):
         pooled_summary([MotResult("c", 1, 1.0, {})])
+
+
+def test_mot_measures_a_tracker_or_localizer_setting_and_says_so(swarm_json, capsys):
+    """``--tracker`` / ``--localizer KEY=VALUE`` reach the pipeline (max_tracks=1: at most one
+    track a frame, so at most one drone matched a frame) and the output names what changed."""
+    argv = ["mot", "--sequence", str(swarm_json), "--json"]
+    assert eval_main([*argv, "--tracker", "max_tracks=1", "--localizer", "max_candidates=3"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    changed = {"localizer_changed": {"max_candidates": 3}, "tracker_changed": {"max_tracks": 1}}
+    assert out["settings"] == changed
+    assert sum(d["frames"] for d in out["per_drone"]) <= out["frames"]
+    assert eval_main([*argv]) == 0
+    assert json.loads(capsys.readouterr().out)["settings"] == {"localizer_changed": {}, "tracker_changed": {}}
+    assert eval_main(["mot", "--sequence", str(swarm_json), "--tracker", "max_tracks=1"]) == 0
+    assert capsys.readouterr().out.startswith("settings: tracker max_tracks=1\n")
+    assert eval_main([*argv, "--tracker", "merge_range_ratio=abc"]) == 2
+    err = capsys.readouterr().err
+    assert "--tracker merge_range_ratio" in err and "abc" in err and len(err.strip().splitlines()) == 1
