@@ -24,9 +24,10 @@ from pathlib import Path
 
 from dronekey.evaluation.config_overrides import (
     OverrideError,
-    changed_settings,
     config_with_overrides,
+    describe_pipeline_changes,
     parse_overrides,
+    pipeline_changes,
 )
 from dronekey.evaluation.fusion import evaluate_fusion, fusion_table
 from dronekey.evaluation.keypoints import evaluate_keypoints
@@ -176,10 +177,7 @@ def _cmd_mot(args: argparse.Namespace) -> int:
     if args.video is not None and len(args.sequence) > 1:
         raise _UsageError("--video names one sequence's video: give one --sequence with it")
     localizer, tracker = _pipeline_configs(args, {}, {})
-    changed = {
-        "localizer_changed": changed_settings(localizer, LocalizerConfig),
-        "tracker_changed": changed_settings(tracker, TrackerConfig),
-    }
+    changed = pipeline_changes(localizer, tracker)
     results = []
     for path in args.sequence:
         seq, frames = _load(Path(path), args.video)
@@ -199,11 +197,7 @@ def _cmd_mot(args: argparse.Namespace) -> int:
         out = results[0].to_dict() if len(results) == 1 else pooled_to_dict(results)
         print(json.dumps({**out, "settings": changed}))
         return 0
-    settings = [
-        f"{part} {', '.join(f'{k}={v}' for k, v in changed[f'{part}_changed'].items())}"
-        for part in ("localizer", "tracker")
-        if changed[f"{part}_changed"]
-    ]
+    settings = describe_pipeline_changes(changed)
     if settings:
         print("settings: " + "; ".join(settings) + "\n")
     print(mot_table(results[0]) if len(results) == 1 else pooled_table(results))

@@ -1,6 +1,7 @@
-"""``KEY=VALUE`` settings for a config dataclass, from the command line (``dronekey-eval robustness
---tracker KEY=VALUE --localizer KEY=VALUE``): any setting of ``TrackerConfig`` or ``LocalizerConfig``
-measured on the evaluation's matrix before it is shipped, without a script of one's own.
+"""``KEY=VALUE`` settings for a config dataclass, from the command line (``dronekey-eval robustness``
+and ``mot``, ``--tracker KEY=VALUE --localizer KEY=VALUE``): any setting of ``TrackerConfig`` or
+``LocalizerConfig`` measured before it is shipped, without a script of one's own; and how a report
+names what was changed (``pipeline_changes``, ``describe_pipeline_changes``).
 
 A value is read as the field's type (the annotation names it: ``bool`` true / false, ``int``,
 ``float``, ``null`` where the field may be None); the dataclass's own checks then run, so a
@@ -14,7 +15,17 @@ import math
 from collections.abc import Sequence
 from typing import Any
 
-__all__ = ["OverrideError", "changed_settings", "config_with_overrides", "parse_overrides"]
+from dronekey.perception.localizer import LocalizerConfig
+from dronekey.tracking.tracker_config import TrackerConfig
+
+__all__ = [
+    "OverrideError",
+    "changed_settings",
+    "config_with_overrides",
+    "describe_pipeline_changes",
+    "parse_overrides",
+    "pipeline_changes",
+]
 
 _TRUE, _FALSE, _NULL = ("true", "yes", "on", "1"), ("false", "no", "off", "0"), ("null", "none")
 
@@ -74,6 +85,27 @@ def changed_settings(config: Any, config_type: type) -> dict[str, Any]:
         for f in dataclasses.fields(config_type)
         if getattr(config, f.name) != getattr(shipped, f.name)
     }
+
+
+def pipeline_changes(
+    localizer: LocalizerConfig | None, tracker: TrackerConfig | None
+) -> dict[str, dict[str, Any]]:
+    """What a measurement changed of the localiser's and the tracker's settings (``changed_settings``
+    of each; None: shipped), under the keys an evaluation's ``settings`` report them by."""
+    return {
+        "localizer_changed": changed_settings(localizer, LocalizerConfig),
+        "tracker_changed": changed_settings(tracker, TrackerConfig),
+    }
+
+
+def describe_pipeline_changes(settings: dict) -> list[str]:
+    """``pipeline_changes``' entries of ``settings`` as text, one per part that changed:
+    ``["localizer max_candidates=4", "tracker max_tracks=1"]``."""
+    return [
+        f"{part} {', '.join(f'{k}={v}' for k, v in settings[key].items())}"
+        for part, key in (("localizer", "localizer_changed"), ("tracker", "tracker_changed"))
+        if settings.get(key)
+    ]
 
 
 def _annotation(field_type: Any) -> str:

@@ -16,6 +16,7 @@ from dronekey.geometry.camera import CameraModel
 from dronekey.geometry.drone_spec import load_spec
 from dronekey.geometry.rotations import geodesic_angle_deg, rotation_from_euler_deg
 from dronekey.perception.paper_frame import paper_basis_in_body
+from dronekey.perception.planar_pnp import PlanarPnP
 from dronekey.perception.pose import PoseEstimator, _quad_is_crossed
 from dronekey.types import PoseMeasurement, PoseRejection, RejectionCode
 
@@ -287,8 +288,6 @@ def test_one_view_cannot_tell_a_mini2_from_an_air2s(yaw, elevation):
     aspects (0.78 and 0.72) trade against the attitude in a small image. So one camera reads an
     unknown airframe's range no better than the airframes' size ratio (``airframe_range_span``),
     and a mixed swarm is a fleet's job (docs/evaluation.md, "One camera, two airframes")."""
-    from dronekey.perception.planar_pnp import PlanarPnP
-
     air2s = load_spec("air2s")
     R = elevated(yaw, -6.0, 3.0, elevation)
     t = np.array([0.4, -0.3, 8.0])

@@ -9,6 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from dronekey.evaluation.config_overrides import describe_pipeline_changes
 from dronekey.evaluation.pose import rounded
 from dronekey.evaluation.robustness.render import Rendered
 from dronekey.evaluation.robustness.scoring import SequenceScores
@@ -139,11 +140,7 @@ class RobustnessReport:
                 else ""
             )
             + (", every drone cue-free (no front/back cue)" if st.get("cue_free") else "")
-            + "".join(
-                f", {part} {', '.join(f'{k}={v}' for k, v in st[key].items())}"
-                for part, key in (("localizer", "localizer_changed"), ("tracker", "tracker_changed"))
-                if st.get(key)
-            ),
+            + "".join(f", {change}" for change in describe_pipeline_changes(st)),
         ]
         if not st.get("model_has_heading_head", True):
             lines.append(

@@ -14,7 +14,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from dronekey.evaluation.config_overrides import changed_settings
+from dronekey.evaluation.config_overrides import pipeline_changes
 from dronekey.evaluation.robustness.dither import FrameDither
 from dronekey.evaluation.robustness.matrix import (
     BACKGROUNDS,
@@ -159,8 +159,7 @@ def run_robustness(
         "acquire_recut": (localizer or LocalizerConfig()).acquire_recut,
         "confirm_max_outliers": (tracker or TrackerConfig()).confirm_max_outliers,
         "heading_full_spread_px": (tracker or TrackerConfig()).heading_full_spread_px,
-        "localizer_changed": changed_settings(localizer, LocalizerConfig),
-        "tracker_changed": changed_settings(tracker, TrackerConfig),
+        **pipeline_changes(localizer, tracker),
         "measure_every": int(measure_every),
         "match_gate": {"min_m": MATCH_GATE_M, "range_fraction": MATCH_GATE_FRACTION},
         "wrong_heading_deg": WRONG_HEADING_DEG,
