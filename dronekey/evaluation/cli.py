@@ -4,7 +4,7 @@
     dronekey-eval pose --sequence DIR/seq13.json [--video FILE] [--model FILE] [--plot FILE.png] [--json]
     dronekey-eval pose --all DIR [--json]            # seq11-13 in DIR, the paper's Tab. VI
     dronekey-eval pose ... --oracle-noise PX         # ground-truth keypoints + noise: PnP and filter only
-    dronekey-eval mot --sequence DIR/swarm.json [--gate M] [--json]   # MOTA, IDF1, ID switches
+    dronekey-eval mot --sequence DIR/swarm.json [--gate M] [--dither SEED] [--json]  # MOTA, IDF1, switches
     dronekey-eval fusion DIR [--gate M] [--json]     # dronekey-sim --cameras N: each camera vs fused
     dronekey-eval robustness --out DIR [--json] [--frames N] [--seeds N ...] [--tuning] [--quick]
                                                      # LEDs x backgrounds x motions, far drones, drone-free
@@ -34,6 +34,7 @@ from dronekey.evaluation.keypoints import evaluate_keypoints
 from dronekey.evaluation.mot import DEFAULT_GATE_M, evaluate_mot, mot_table, pooled_table, pooled_to_dict
 from dronekey.evaluation.pose import evaluate_sequence, table_vi, weighted_average
 from dronekey.evaluation.pose_plot import plot_sequence
+from dronekey.evaluation.robustness.dither import FrameDither
 from dronekey.evaluation.robustness.matrix import (
     BACKGROUNDS,
     DEFAULT_FRAMES,
@@ -176,8 +177,9 @@ def _cmd_mot(args: argparse.Namespace) -> int:
         raise _UsageError(f"--gate must be a positive distance in metres, got {args.gate}")
     if args.video is not None and len(args.sequence) > 1:
         raise _UsageError("--video names one sequence's video: give one --sequence with it")
+    _check_dither(args)
     localizer, tracker = _pipeline_configs(args, {}, {})
-    changed = pipeline_changes(localizer, tracker)
+    changed = {**pipeline_changes(localizer, tracker), "dither": args.dither}
     results = []
     for path in args.sequence:
         seq, frames = _load(Path(path), args.video)
@@ -191,6 +193,7 @@ def _cmd_mot(args: argparse.Namespace) -> int:
                 mirror_average=not args.no_mirror_average,
                 tracker=tracker,
                 localizer=localizer,
+                dither=None if args.dither is None else FrameDither(args.dither),
             )
         )
     if args.json:
@@ -198,6 +201,8 @@ def _cmd_mot(args: argparse.Namespace) -> int:
         print(json.dumps({**out, "settings": changed}))
         return 0
     settings = describe_pipeline_changes(changed)
+    if args.dither is not None:
+        settings.append(f"frames dithered (seed {args.dither})")
     if settings:
         print("settings: " + "; ".join(settings) + "\n")
     print(mot_table(results[0]) if len(results) == 1 else pooled_table(results))
@@ -221,8 +226,7 @@ def _cmd_robustness(args: argparse.Namespace) -> int:
         raise _UsageError(f"--frames must be positive, got {frames}")
     if args.drone_free is not None and args.drone_free < 0:
         raise _UsageError(f"--drone-free must be >= 0, got {args.drone_free}")
-    if args.dither is not None and args.dither < 0:
-        raise _UsageError(f"--dither must be >= 0, got {args.dither}")
+    _check_dither(args)
     if args.acquire_recut is not None and not args.acquire_recut > 0:
         raise _UsageError(f"--acquire-recut must be > 0, got {args.acquire_recut}")
     if args.confirm_max_outliers < 0:
@@ -311,6 +315,22 @@ def _pipeline_configs(
     except OverrideError as exc:
         raise _UsageError(str(exc)) from None
     return localizer, tracker
+
+
+def _add_dither_flag(parser: argparse.ArgumentParser) -> None:
+    """``--dither SEED`` (``_check_dither`` validates it)."""
+    parser.add_argument(
+        "--dither",
+        type=int,
+        metavar="SEED",
+        help="add -1, 0 or +1 grey level of seeded noise to every frame before the pipeline: the "
+        "figures' change against a run without is the evaluation's noise floor",
+    )
+
+
+def _check_dither(args: argparse.Namespace) -> None:
+    if args.dither is not None and args.dither < 0:
+        raise _UsageError(f"--dither must be >= 0, got {args.dither}")
 
 
 def _add_override_flags(parser: argparse.ArgumentParser) -> None:
@@ -440,6 +460,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--no-mirror-average", action="store_true", help="run each crop once (the daemon's default averages)"
     )
     _add_override_flags(m)
+    _add_dither_flag(m)
     m.add_argument("--json", action="store_true", help="print one JSON object")
     m.set_defaults(func=_cmd_mot)
     f = sub.add_parser(
@@ -482,13 +503,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     r.add_argument("--verifier", default=None, help="ONNX drone verifier (default: the shipped one, if any)")
     r.add_argument("--no-verifier", action="store_true", help="run without a drone verifier")
-    r.add_argument(
-        "--dither",
-        type=int,
-        metavar="SEED",
-        help="add -1, 0 or +1 grey level of seeded noise to every frame before the pipeline: the "
-        "figures' change against a run without is the evaluation's noise floor",
-    )
+    _add_dither_flag(r)
     r.add_argument(
         "--acquire-recut",
         type=float,

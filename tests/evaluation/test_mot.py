@@ -92,13 +92,31 @@ def test_mot_measures_a_tracker_or_localizer_setting_and_says_so(swarm_json, cap
     argv = ["mot", "--sequence", str(swarm_json), "--json"]
     assert eval_main([*argv, "--tracker", "max_tracks=1", "--localizer", "max_candidates=3"]) == 0
     out = json.loads(capsys.readouterr().out)
-    changed = {"localizer_changed": {"max_candidates": 3}, "tracker_changed": {"max_tracks": 1}}
+    changed = {
+        "localizer_changed": {"max_candidates": 3},
+        "tracker_changed": {"max_tracks": 1},
+        "dither": None,
+    }
     assert out["settings"] == changed
     assert sum(d["frames"] for d in out["per_drone"]) <= out["frames"]
     assert eval_main([*argv]) == 0
-    assert json.loads(capsys.readouterr().out)["settings"] == {"localizer_changed": {}, "tracker_changed": {}}
+    unchanged = {"localizer_changed": {}, "tracker_changed": {}, "dither": None}
+    assert json.loads(capsys.readouterr().out)["settings"] == unchanged
     assert eval_main(["mot", "--sequence", str(swarm_json), "--tracker", "max_tracks=1"]) == 0
     assert capsys.readouterr().out.startswith("settings: tracker max_tracks=1\n")
     assert eval_main([*argv, "--tracker", "merge_range_ratio=abc"]) == 2
     err = capsys.readouterr().err
     assert "--tracker merge_range_ratio" in err and "abc" in err and len(err.strip().splitlines()) == 1
+
+
+def test_mot_dithered_names_its_seed_and_refuses_a_negative_one(swarm_json, capsys):
+    """``--dither SEED``: the same frames with a grey level of seeded noise (the swarm figures' noise
+    floor); the seed is in the JSON and the table's first line, and a bad one is one line."""
+    argv = ["mot", "--sequence", str(swarm_json)]
+    assert eval_main([*argv, "--dither", "3", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["settings"]["dither"] == 3
+    assert eval_main([*argv, "--dither", "3"]) == 0
+    assert capsys.readouterr().out.startswith("settings: frames dithered (seed 3)\n")
+    assert eval_main([*argv, "--dither", "-1"]) == 2
+    err = capsys.readouterr().err
+    assert "--dither must be >= 0, got -1" in err and len(err.strip().splitlines()) == 1
