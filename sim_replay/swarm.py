@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -115,7 +115,7 @@ def swarm_plans(
     if range_scale != 1.0:
         plans = [DronePlan(p.instance_id, p.drone, _scaled(p.path, range_scale)) for p in plans]
     if airframe is not None:
-        plans = [DronePlan(p.instance_id, airframe, p.path) for p in plans]
+        plans = [replace(p, drone=airframe) for p in plans]
     return plans[:n_drones]
 
 

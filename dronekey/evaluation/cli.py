@@ -34,7 +34,7 @@ from dronekey.evaluation.keypoints import evaluate_keypoints
 from dronekey.evaluation.mot import DEFAULT_GATE_M, evaluate_mot, mot_table, pooled_table, pooled_to_dict
 from dronekey.evaluation.pose import evaluate_sequence, table_vi, weighted_average
 from dronekey.evaluation.pose_plot import plot_sequence
-from dronekey.evaluation.robustness.dither import FrameDither
+from dronekey.evaluation.robustness.dither import FrameDither, describe_dither
 from dronekey.evaluation.robustness.matrix import (
     BACKGROUNDS,
     DEFAULT_FRAMES,
@@ -202,7 +202,7 @@ def _cmd_mot(args: argparse.Namespace) -> int:
         return 0
     settings = describe_pipeline_changes(changed)
     if args.dither is not None:
-        settings.append(f"frames dithered (seed {args.dither})")
+        settings.append(describe_dither(args.dither))
     if settings:
         print("settings: " + "; ".join(settings) + "\n")
     print(mot_table(results[0]) if len(results) == 1 else pooled_table(results))

@@ -18,9 +18,14 @@ import numpy as np
 
 from dronekey.types import Frame
 
-__all__ = ["FrameDither"]
+__all__ = ["FrameDither", "describe_dither"]
 
 BANK = 4  # noise frames drawn per sequence and used in turn: each frame's noise differs from the last
+
+
+def describe_dither(seed: int) -> str:
+    """How a report names dithered frames (``robustness`` and ``mot`` alike)."""
+    return f"frames dithered (seed {seed})"
 
 
 class FrameDither:

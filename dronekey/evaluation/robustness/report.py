@@ -11,6 +11,7 @@ from pathlib import Path
 
 from dronekey.evaluation.config_overrides import describe_pipeline_changes
 from dronekey.evaluation.pose import rounded
+from dronekey.evaluation.robustness.dither import describe_dither
 from dronekey.evaluation.robustness.render import Rendered
 from dronekey.evaluation.robustness.scoring import SequenceScores
 from dronekey.evaluation.robustness.summary import summarise
@@ -122,7 +123,7 @@ class RobustnessReport:
             f"{st['size'][0]}x{st['size'][1]}, model {Path(st['model']).name}"
             + (f", front/back {Path(st['front_back']).name}" if st.get("front_back") else "")
             + (f", verifier {Path(st['verifier']).name}" if st.get("verifier") else "")
-            + (f", frames dithered (seed {st['dither']})" if st.get("dither") is not None else "")
+            + (f", {describe_dither(st['dither'])}" if st.get("dither") is not None else "")
             + (f", search recut {st['acquire_recut']}" if st.get("acquire_recut") is not None else "")
             + (
                 f", confirmation leaving out {st['confirm_max_outliers']} outlying hit(s)"
