@@ -64,6 +64,12 @@ class LocalizerConfig:
     min_contrast : smallest local contrast (8-bit levels) a blob must reach.
     background_sigma : blur (work-image px) that estimates the local background.
     use_motion : also propose blobs that changed since the previous frame (static cameras).
+    motion_frames : frames the motion map compares. 2: this search frame against the last one; a
+        moving drone's blob then holds it twice (where it is and where it was), and the crop cut
+        from it is 3-4x the drone's framing, where the network sees nothing (a swarm's far drone:
+        presence 0.01-0.04). 3: the smaller of its differences with the last two search frames
+        (the three-frame difference), which is high only where the drone is now, since where it
+        was differs from one earlier frame alone; the two-frame map until two earlier frames exist.
     recut_shift, recut_scale : in tracking mode, the crop is cut again on the detected keypoints when
         their box's centre is off the crop's centre by more than ``recut_shift`` of the crop side, or
         its size off by more than ``recut_scale`` (relative): the network was trained on crops within
@@ -108,6 +114,7 @@ class LocalizerConfig:
     min_contrast: float = 12.0
     background_sigma: float = 6.0
     use_motion: bool = True
+    motion_frames: int = 2
     recut_shift: float = 0.04
     recut_scale: float = 0.05
     acquire_recut: float | None = None
@@ -136,6 +143,8 @@ class LocalizerConfig:
             )
         if not 0.0 < self.wide_look_presence <= 1.0:
             raise ValueError(f"wide_look_presence must be in (0, 1], got {self.wide_look_presence}")
+        if self.motion_frames not in (2, 3):
+            raise ValueError(f"motion_frames must be 2 or 3, got {self.motion_frames}")
         if self.acquire_recut is not None and not self.acquire_recut > 0.0:
             raise ValueError(f"acquire_recut must be > 0, got {self.acquire_recut}")
 
@@ -200,6 +209,7 @@ class Localizer:
         self.crop = crop
         self.config = config or LocalizerConfig()
         self._prev_small: np.ndarray | None = None
+        self._earlier_small: np.ndarray | None = None  # the search frame before that
 
     # ------------------------------------------------------------------ tracking mode
     def detect_in_box(self, frame: np.ndarray | FrameImage, box: Box) -> KeypointDetection:
@@ -398,8 +408,8 @@ class Localizer:
     def saliency(self, frame: np.ndarray | FrameImage) -> Saliency:
         """This frame's saliency pass against the last searched frame; it becomes the next one's
         motion reference. Safe to run on another thread while the network runs on this one."""
-        result = saliency_pass(frame, self.config, self._prev_small)
-        self._prev_small = result.small
+        result = saliency_pass(frame, self.config, self._prev_small, self._earlier_small)
+        self._earlier_small, self._prev_small = self._prev_small, result.small
         return result
 
 
@@ -419,11 +429,16 @@ class Saliency:
 
 
 def saliency_pass(
-    frame: np.ndarray | FrameImage, config: LocalizerConfig, previous_small: np.ndarray | None = None
+    frame: np.ndarray | FrameImage,
+    config: LocalizerConfig,
+    previous_small: np.ndarray | None = None,
+    earlier_small: np.ndarray | None = None,
 ) -> Saliency:
     """Local contrast on a ``config.work_width`` copy of the frame (a BGR array or a ``FrameImage``,
     whose YUV planes are downscaled before the colour conversion), plus the change since
     ``previous_small`` (that copy of an earlier frame) when ``config.use_motion``: their blobs.
+    With ``config.motion_frames`` 3 the change is also taken against ``earlier_small`` (the frame
+    before that one), and the smaller of the two kept: where a moving object is now.
 
     Pure (no state), so the pipeline may run it on another core while the track crops run.
     """
@@ -435,7 +450,10 @@ def saliency_pass(
     maps = [(_max_abs_difference(small, background), False)]
     if cfg.use_motion and previous_small is not None and previous_small.shape == small.shape:
         # Two 8-bit images' difference: whole grey levels, whose median a histogram finds
-        maps.append((_max_abs_difference(small, previous_small), True))
+        motion = _max_abs_difference(small, previous_small)
+        if cfg.motion_frames == 3 and earlier_small is not None and earlier_small.shape == small.shape:
+            motion = np.minimum(motion, _max_abs_difference(small, earlier_small))
+        maps.append((motion, True))
     max_side = cfg.max_drone_px * scale
     per_map = [
         sorted(_blobs(m, cfg.min_contrast, max_side, cfg.peaks_per_region, levels), key=lambda b: -b[0])

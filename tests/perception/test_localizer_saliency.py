@@ -12,6 +12,7 @@ from dronekey.perception.localizer import (
     _median,
     _median_of_levels,
     propose_rois,
+    saliency_pass,
 )
 
 
@@ -101,3 +102,42 @@ def test_a_small_moving_blob_gets_a_share_of_the_budget_among_big_static_windows
     assert not any(
         abs(x + s / 2 - 965) < s / 2 and abs(y + s / 2 - 644) < s / 2 for x, y, s in without_motion
     )
+
+
+def test_the_three_frame_difference_proposes_the_drone_where_it_is_now_not_where_it_was():
+    """Against one earlier frame, a moving drone's motion blob spans both its places, and the crop
+    cut from it is twice too large; against the two earlier search frames (``motion_frames`` 3) the
+    blob is the drone where it is now."""
+    sky = np.full((1080, 1920, 3), 200, np.uint8)
+    frames = []
+    for x in (800, 860, 920):  # a 40 x 16 px dark drone moving 60 px a search frame
+        frame = sky.copy()
+        cv2.rectangle(frame, (x, 500), (x + 40, 516), (60, 60, 60), -1)
+        frames.append(frame)
+    config = LocalizerConfig(motion_frames=3)
+    earlier = saliency_pass(frames[0], config).small
+    previous = saliency_pass(frames[1], config, earlier).small
+
+    def motion_boxes(three: bool):
+        """The blobs of the motion map alone (the contrast map's removed by a flat reference)."""
+        cfg = LocalizerConfig(motion_frames=3 if three else 2)
+        small = saliency_pass(frames[2], cfg).small
+        motion = _max_abs_difference(small, previous)
+        if three:
+            motion = np.minimum(motion, _max_abs_difference(small, earlier))
+        return [box for _, box in _blobs(motion, cfg.min_contrast, levels=True)], small.shape[1] / 1920
+
+    two, scale = motion_boxes(False)
+    three, _ = motion_boxes(True)
+    assert len(two) == 1 and len(three) == 1
+    assert two[0][2] / scale >= 110  # both places: 860-960 px
+    x, _, w, _ = (v / scale for v in three[0])
+    assert 900 <= x <= 925 and w <= 64  # the drone now (920-960 px), grown by the blob dilation
+    # and the pass itself: its motion blob is the three-frame one
+    blobs = saliency_pass(frames[2], config, previous, earlier).blobs
+    assert three[0] in blobs and two[0] not in blobs
+
+
+def test_motion_frames_is_two_or_three():
+    with pytest.raises(ValueError, match="motion_frames must be 2 or 3, got 4"):
+        LocalizerConfig(motion_frames=4)
