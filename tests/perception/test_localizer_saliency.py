@@ -141,3 +141,21 @@ def test_the_three_frame_difference_proposes_the_drone_where_it_is_now_not_where
 def test_motion_frames_is_two_or_three():
     with pytest.raises(ValueError, match="motion_frames must be 2 or 3, got 4"):
         LocalizerConfig(motion_frames=4)
+
+
+def test_a_tight_blob_is_the_box_of_its_salient_pixels_with_the_same_score():
+    """The dilation joins pixels into regions; with ``tight`` the box is the pixels' own, so a
+    small blob's crop is not 16 frame px wider than the object on every side."""
+    rng = np.random.default_rng(3)
+    for k in range(20):
+        saliency = (rng.random((270, 480)) ** (4 + k % 8) * 120).astype(np.float32)
+        wide, tight = _blobs(saliency, 12.0), _blobs(saliency, 12.0, tight=True)
+        assert [score for score, _ in wide] == [score for score, _ in tight]
+        for (_, (x, y, w, h)), (_, (tx, ty, tw, th)) in zip(wide, tight, strict=True):
+            assert x <= tx and y <= ty and tx + tw <= x + w and ty + th <= y + h
+    spot = np.zeros((64, 64), np.float32)
+    spot[30:33, 20:26] = 50.0  # 6 x 3 px above the threshold
+    spot[31, 29] = 50.0  # a lone pixel the dilation joins to it
+    ((_, wide),) = _blobs(spot, 12.0)
+    ((_, tight),) = _blobs(spot, 12.0, tight=True)
+    assert wide == (18.0, 28.0, 14.0, 7.0) and tight == (20.0, 30.0, 10.0, 3.0)
