@@ -70,10 +70,13 @@ class LocalizerConfig:
         presence 0.01-0.04). 3: the smaller of its differences with the last two search frames
         (the three-frame difference), which is high only where the drone is now, since where it
         was differs from one earlier frame alone; the two-frame map until two earlier frames exist.
+        2 as shipped: 3 found a swarm's far drone sooner but did not raise the tuning swarms'
+        IDF1 beyond their noise (docs/evaluation.md).
     tight_blobs : a blob's box (hence its crop) is the box of its pixels above the threshold, not of
         the dilated mask that joins them into one region (which adds 2 map px, 8 frame px at
         ``work_width`` 480 on a 1080p frame, on every side: a far drone's 28 px body came out as a
-        76 px blob, and its crop 137 px).
+        76 px blob, and its crop 137 px). Off as shipped: measured with ``motion_frames`` 3, it
+        added false tracks on the mixed tuning swarms (docs/evaluation.md).
     recut_shift, recut_scale : in tracking mode, the crop is cut again on the detected keypoints when
         their box's centre is off the crop's centre by more than ``recut_shift`` of the crop side, or
         its size off by more than ``recut_scale`` (relative): the network was trained on crops within
