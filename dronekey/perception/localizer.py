@@ -217,7 +217,7 @@ class Localizer:
         self.crop = crop
         self.config = config or LocalizerConfig()
         self._prev_small: np.ndarray | None = None
-        self._earlier_small: np.ndarray | None = None  # the search frame before that
+        self._earlier_small: np.ndarray | None = None  # the search frame before that (motion_frames 3)
 
     # ------------------------------------------------------------------ tracking mode
     def detect_in_box(self, frame: np.ndarray | FrameImage, box: Box) -> KeypointDetection:
@@ -417,7 +417,9 @@ class Localizer:
         """This frame's saliency pass against the last searched frame; it becomes the next one's
         motion reference. Safe to run on another thread while the network runs on this one."""
         result = saliency_pass(frame, self.config, self._prev_small, self._earlier_small)
-        self._earlier_small, self._prev_small = self._prev_small, result.small
+        if self.config.motion_frames == 3:  # only the three-frame map reads it: hold no copy otherwise
+            self._earlier_small = self._prev_small
+        self._prev_small = result.small
         return result
 
 
@@ -621,7 +623,7 @@ def _blobs(
         region = saliency[y0 + y : y0 + y + bh, x0 + x : x0 + x + bw][inside]
         score = float(region.max()) * np.sqrt(float(area))
         if tight:
-            ys, xs = np.nonzero(inside & (salient[y0 + y : y0 + y + bh, x0 + x : x0 + x + bw] > 0))
+            ys, xs = np.nonzero(inside & salient[y0 + y : y0 + y + bh, x0 + x : x0 + x + bw].astype(bool))
             x, y, bw, bh = x + xs.min(), y + ys.min(), xs.max() - xs.min() + 1, ys.max() - ys.min() + 1
         out.append((score, (float(x0 + x), float(y0 + y), float(bw), float(bh))))
     return out
