@@ -615,15 +615,14 @@ def _blobs(
         x, y, bw, bh, area = stats[i]
         if area < 4:
             continue
+        inside = labels[y : y + bh, x : x + bw] == i
         if max_side is not None and max(bw, bh) > max_side:
-            inside = labels[y : y + bh, x : x + bw] == i
             out.extend(_peak_blobs(saliency, (x0 + x, y0 + y, bw, bh), inside, thr, max_side, peaks))
             continue
-        inside = labels[y : y + bh, x : x + bw] == i
-        region = saliency[y0 + y : y0 + y + bh, x0 + x : x0 + x + bw][inside]
-        score = float(region.max()) * np.sqrt(float(area))
+        window = (slice(y0 + y, y0 + y + bh), slice(x0 + x, x0 + x + bw))  # the region's box in the map
+        score = float(saliency[window][inside].max()) * np.sqrt(float(area))
         if tight:
-            ys, xs = np.nonzero(inside & salient[y0 + y : y0 + y + bh, x0 + x : x0 + x + bw].astype(bool))
+            ys, xs = np.nonzero(inside & salient[window].astype(bool))
             x, y, bw, bh = x + xs.min(), y + ys.min(), xs.max() - xs.min() + 1, ys.max() - ys.min() + 1
         out.append((score, (float(x0 + x), float(y0 + y), float(bw), float(bh))))
     return out
