@@ -36,15 +36,21 @@ class CropSource:
     """
 
     def __init__(
-        self, crop: CropPolicy, backgrounds: str | None = None, coco_images: list[CocoImage] | None = None
+        self,
+        crop: CropPolicy,
+        backgrounds: str | None = None,
+        coco_images: list[CocoImage] | None = None,
+        side_view_boost: float = 0.0,
     ) -> None:
         self.crop, self.backgrounds, self.coco_images = crop, backgrounds, coco_images
+        self.side_view_boost = side_view_boost
 
     def sampler(self, seed: int):
         """A sampler with ``sample() -> CropSample``, reproducible for ``seed``."""
         if self.coco_images is not None:
             return CocoCropSampler(self.coco_images, self.crop, seed=seed)
-        return CropSampler(SamplerConfig(crop=self.crop), seed=seed, backgrounds=self.backgrounds)
+        config = SamplerConfig(crop=self.crop, side_view_boost=self.side_view_boost)
+        return CropSampler(config, seed=seed, backgrounds=self.backgrounds)
 
 
 class CropStream(torch.utils.data.IterableDataset):
@@ -77,16 +83,21 @@ def batch_loader(seed: int, source: CropSource, batch: int, workers: int) -> tor
 
 
 def crop_sources(
-    crop: CropPolicy, coco: str | Path | None = None, backgrounds: str | None = None
+    crop: CropPolicy,
+    coco: str | Path | None = None,
+    backgrounds: str | None = None,
+    side_view_boost: float = 0.0,
 ) -> tuple[CropSource, CropSource]:
     """Training and validation crop sources: the renderer (its own validation seed), or ``coco``.
+    ``side_view_boost`` (``SamplerConfig``) weights the renderer's training stream only, so that the
+    validation figures stay comparable between runs.
 
     With ``coco`` and no validation JSON, every tenth image is held out for validation (adjacent
     video frames are alike, so such a split flatters the figures: prefer a real validation file).
     """
     if not coco:
-        source = CropSource(crop, backgrounds=backgrounds)
-        return source, source
+        validation = CropSource(crop, backgrounds=backgrounds)
+        return CropSource(crop, backgrounds=backgrounds, side_view_boost=side_view_boost), validation
     train_files, val_files = find_coco_splits(coco)
     train_images = load_coco_images(train_files)
     if val_files:

@@ -90,6 +90,8 @@ class Recipe:
     presence_steps: int = 0
     val_samples: int = 1500
     patience: int = 12
+    # the training stream's SamplerConfig.side_view_boost (validation keeps the plain mix)
+    side_view_boost: float = 0.0
     crop: dict = field(default_factory=lambda: asdict(CropPolicy()))
 
 

@@ -35,6 +35,7 @@ OVERRIDES = {
     "patience": "patience",
     "presence_steps": "presence_steps",
     "heading_weight": "heading_weight",
+    "side_view_boost": "side_view_boost",
 }
 
 
@@ -90,6 +91,14 @@ def build_parser() -> argparse.ArgumentParser:
         "jitter_scale): wider teaches the network to read a drone's size inside a crop cut too small or "
         "too large instead of from the crop itself",
     )
+    g.add_argument(
+        "--side-view-boost",
+        type=float,
+        metavar="B",
+        help="draw again this share of the rendered drones that are not seen side-on (left/right axis "
+        "foreshortened until the front/back sides look longer), so the network learns the body's axes "
+        "where the longer side is not left/right (training stream only; 0 keeps the plain mix)",
+    )
     p.add_argument(
         "--init-from",
         default=None,
@@ -109,6 +118,8 @@ def _check(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
             parser.error(f"--{name.replace('_', '-')} must be positive, got {v}")
     if args.presence_steps is not None and args.presence_steps < 0:
         parser.error(f"--presence-steps must be >= 0, got {args.presence_steps}")
+    if args.side_view_boost is not None and not 0.0 <= args.side_view_boost < 1.0:
+        parser.error(f"--side-view-boost must be in [0, 1), got {args.side_view_boost}")
     if args.crop_jitter_scale is not None and not 0.0 <= args.crop_jitter_scale < 1.0:
         parser.error(f"--crop-jitter-scale must be in [0, 1), got {args.crop_jitter_scale}")
     if args.workers < 0:

@@ -210,7 +210,7 @@ class Trainer:
         keypoint_loss = build_loss(
             recipe.loss, recipe.schedule, recipe.alpha, recipe.D, total_epochs=100, eps=recipe.eps
         )
-        train_source, val_source = crop_sources(crop, self.coco, self.backgrounds)
+        train_source, val_source = crop_sources(crop, self.coco, self.backgrounds, recipe.side_view_boost)
         val = validation_set(
             self.folder.validation_cache(recipe.val_samples, crop.input_size, coco=bool(self.coco)),
             recipe.val_samples,

@@ -11,7 +11,7 @@ from dronekey.sim_replay.annotations import HIDDEN, VISIBLE
 from dronekey.sim_replay.drone_look import BodyShape, DroneStyle
 from dronekey.sim_replay.mesh import build_mesh, segment_hits
 from dronekey.sim_replay.renderer import Lighting, render_drone
-from dronekey.sim_replay.sampler import CropSampler, SamplerConfig
+from dronekey.sim_replay.sampler import CropSampler, SamplerConfig, is_side_on
 
 SPEC = load_spec("mini2")
 
@@ -135,3 +135,25 @@ def test_sampler_gives_end_sensors_on_request_and_leaves_other_streams_alone():
     assert not np.array_equal(plain.image, pods.image)
     with pytest.raises(ValueError, match="end_sensor_fraction must be in"):
         SamplerConfig(end_sensor_fraction=-0.1)
+
+
+def test_side_on_is_the_front_back_sides_looking_longer():
+    # hubs in the spec's order (front right, rear right, rear left, front left), image pixels
+    head_on = np.array([[60, 40], [60, 60], [20, 60], [20, 40]], dtype=float)  # left/right sides 40 px
+    side_on = np.array([[40, 20], [40, 80], [20, 80], [20, 20]], dtype=float)  # front/back sides 60 px
+    assert not is_side_on(head_on)
+    assert is_side_on(side_on)
+
+
+def test_side_view_boost_raises_the_side_on_share_and_leaves_other_streams_alone():
+    def side_on_share(boost: float) -> float:
+        sampler = CropSampler(SamplerConfig(negative_fraction=0.0, side_view_boost=boost), seed=11)
+        return float(np.mean([is_side_on(sampler.sample().keypoints) for _ in range(80)]))
+
+    plain, boosted = side_on_share(0.0), side_on_share(0.8)
+    assert boosted > plain + 0.15
+    first = CropSampler(SamplerConfig(negative_fraction=0.0), seed=4).sample()
+    again = CropSampler(SamplerConfig(negative_fraction=0.0, side_view_boost=0.0), seed=4).sample()
+    np.testing.assert_array_equal(first.image, again.image)
+    with pytest.raises(ValueError, match="side_view_boost"):
+        SamplerConfig(side_view_boost=1.0)

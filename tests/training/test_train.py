@@ -4,8 +4,10 @@ import json
 
 import pytest
 
+from dronekey.geometry.crop import CropPolicy
 from dronekey.training import trainer as trainer_module
 from dronekey.training.checkpoints import load_checkpoint
+from dronekey.training.crop_stream import crop_sources
 from dronekey.training.train_cli import main
 
 
@@ -65,6 +67,7 @@ def test_presence_stage_is_kept_only_when_it_helps(tmp_path, caplog):
         ["--backgrounds", "/nonexistent/dir"],
         ["--presence-steps", "-1"],
         ["--crop-jitter-scale", "1.0"],
+        ["--side-view-boost", "1.0"],
     ],
 )
 def test_bad_arguments_are_one_line_errors(args, tmp_path, capsys):
@@ -91,6 +94,24 @@ def test_crop_jitter_scale_reaches_the_recipe_and_the_checkpoint_and_a_resume(tm
     )
     assert main([*args[:-4], "--out", str(out), "--resume", "--epochs", "2", "--presence-steps", "0"]) == 0
     assert [c.jitter_scale for c in used] == [0.45]
+
+
+def test_side_view_boost_weights_the_training_stream_only_and_survives_a_resume(tmp_path, monkeypatch):
+    train, validation = crop_sources(CropPolicy(), side_view_boost=0.5)
+    assert train.sampler(0).config.side_view_boost == 0.5
+    assert validation.sampler(0).config.side_view_boost == 0.0  # validation figures stay comparable
+
+    out = tmp_path / "run"
+    args = ["--preset", "tiny", "--workers", "0", "--threads", "1", "--presence-steps", "0"]
+    args += ["--out", str(out)]
+    assert main([*args, "--epochs", "1", "--side-view-boost", "0.5"]) == 0
+    used = []
+    real_sources = trainer_module.crop_sources
+    monkeypatch.setattr(
+        trainer_module, "crop_sources", lambda crop, *a: used.append(a[-1]) or real_sources(crop, *a)
+    )
+    assert main([*args, "--resume", "--epochs", "2"]) == 0
+    assert used == [0.5]
 
 
 def test_presence_head_refit_changes_only_the_head_and_switches_its_input():
