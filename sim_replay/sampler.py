@@ -57,8 +57,9 @@ MESH_POOL, MESH_RENEW = 256, 0.08
 def is_side_on(keypoints_px: np.ndarray) -> bool:
     """Whether four hubs (4, 2, image pixels, in the spec's order: front right, rear right, rear left,
     front left) look side-on: their front/back sides (hubs 1-2, 3-4) at least as long in the image as
-    their left/right sides (2-3, 4-1), the left/right axis foreshortened. Every spec's hubs are wider
-    than long, so head-on the left/right sides are the longer; side-on that cue points the wrong way."""
+    their left/right sides (2-3, 4-1), the left/right axis foreshortened. The shipped specs' hubs (Mini 2,
+    Air 2S) are wider than long, so in most views the left/right sides look the longer; side-on that
+    cue points the wrong way."""
     kp = np.asarray(keypoints_px, dtype=np.float64)
     along = np.linalg.norm(kp[0] - kp[1]) + np.linalg.norm(kp[2] - kp[3])
     across = np.linalg.norm(kp[1] - kp[2]) + np.linalg.norm(kp[3] - kp[0])
