@@ -128,6 +128,8 @@ def _check(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
         parser.error(f"--backgrounds folder not found: {args.backgrounds}")
     if args.coco is not None and args.backgrounds is not None:
         parser.error("--backgrounds mixes photos into renders; it does not apply to --coco")
+    if args.coco is not None and args.side_view_boost:
+        parser.error("--side-view-boost weights the renderer's drawings; it does not apply to --coco")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -68,6 +68,7 @@ def test_presence_stage_is_kept_only_when_it_helps(tmp_path, caplog):
         ["--presence-steps", "-1"],
         ["--crop-jitter-scale", "1.0"],
         ["--side-view-boost", "1.0"],
+        ["--side-view-boost", "0.5", "--coco", "/nonexistent/dir"],
     ],
 )
 def test_bad_arguments_are_one_line_errors(args, tmp_path, capsys):
