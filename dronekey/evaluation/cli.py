@@ -32,7 +32,7 @@ from dronekey.evaluation.config_overrides import (
 from dronekey.evaluation.fusion import evaluate_fusion, fusion_table
 from dronekey.evaluation.keypoints import evaluate_keypoints
 from dronekey.evaluation.mot import DEFAULT_GATE_M, evaluate_mot, mot_table, pooled_table, pooled_to_dict
-from dronekey.evaluation.pose import evaluate_sequence, table_vi, weighted_average
+from dronekey.evaluation.pose import evaluate_sequence, rounded, table_vi, weighted_average
 from dronekey.evaluation.pose_plot import plot_sequence
 from dronekey.evaluation.robustness.dither import FrameDither, describe_dither
 from dronekey.evaluation.robustness.matrix import (
@@ -151,11 +151,12 @@ def _cmd_pose(args: argparse.Namespace) -> int:
             ("rmse_m", "rmse_m"),
             ("mae_abs_m", "mae_abs_m"),
             ("mae_angle_up_to_twin_deg", "mae_angle_up_to_twin_deg"),
+            ("confident_wrong_pct", "confident_wrong_pct"),
         ):
             for kind in ("filtered", "raw"):
                 errs = [getattr(getattr(r, kind), attr) for r in results]
                 weights = [getattr(r, kind).frames for r in results]
-                avg.setdefault(kind, {})[key] = round(weighted_average(errs, weights, rms=key == "rmse_m"), 4)
+                avg.setdefault(kind, {})[key] = rounded(weighted_average(errs, weights, rms=key == "rmse_m"))
         print(json.dumps({"sequences": [r.to_dict() for r in results], "average": avg}))
     else:
         print(table_vi(results))

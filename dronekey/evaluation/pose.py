@@ -9,7 +9,11 @@ annotated frame, the filtered track and the raw PnP pose with the ground truth (
   front and back set aside, which four coplanar hubs alone cannot tell apart
   (``dronekey.tracking.heading``);
 - RMSE: sqrt(mean ||t_pred - t_gt||^2), metres;
-- MAE-absolute: mean over frames and axes of |t_pred - t_gt|, metres.
+- MAE-absolute: mean over frames and axes of |t_pred - t_gt|, metres;
+- confidently wrong (not the paper's; filtered only): the share of the frames with an estimate
+  whose attitude is more than ``WRONG_HEADING_DEG`` off while its track's ``heading_confidence``
+  is at least ``CONFIDENT_HEADING``, percent: the pipeline sure of a front it has wrong, which the
+  brief forbids. A drone read the wrong way round with its doubt said does not count.
 
 Errors are averaged over the annotated frames that have an estimate; ``detected_frames`` says how
 many that is. The filtered estimate is the best confirmed or coasting track, the tracks the
@@ -36,6 +40,8 @@ from dronekey.tracking.heading import twin_of
 from dronekey.types import PUBLISHED_STATUSES, Frame, KeypointDetection, TrackStatus
 
 __all__ = [
+    "CONFIDENT_HEADING",
+    "WRONG_HEADING_DEG",
     "PoseErrors",
     "SequenceResult",
     "evaluate_sequence",
@@ -49,6 +55,9 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
+WRONG_HEADING_DEG = 90.0
+CONFIDENT_HEADING = 0.5
+
 
 @dataclass(frozen=True)
 class PoseErrors:
@@ -59,6 +68,7 @@ class PoseErrors:
     rmse_m: float
     mae_abs_m: float
     mae_angle_up_to_twin_deg: float = float("nan")
+    confident_wrong_pct: float = float("nan")
 
     def to_dict(self) -> dict:
         return {
@@ -67,23 +77,31 @@ class PoseErrors:
             "rmse_m": rounded(self.rmse_m),
             "mae_abs_m": rounded(self.mae_abs_m),
             "mae_angle_up_to_twin_deg": rounded(self.mae_angle_up_to_twin_deg),
+            "confident_wrong_pct": rounded(self.confident_wrong_pct),
         }
 
 
-def pose_errors(R_pred, t_pred, R_gt, t_gt) -> PoseErrors:
-    """The paper's three pose errors between lists of predicted and true poses (same length)."""
+def pose_errors(R_pred, t_pred, R_gt, t_gt, heading_confidence=None) -> PoseErrors:
+    """The paper's three pose errors between lists of predicted and true poses (same length), and,
+    given each estimate's ``heading_confidence`` (NaN never counts as sure), the confidently wrong
+    share; NaN without them."""
     n = len(R_pred)
     if n == 0:
         return PoseErrors(0, float("nan"), float("nan"), float("nan"))
     ang = np.array([geodesic_angle_deg(a, b) for a, b in zip(R_pred, R_gt, strict=True)])
     ang_twin = np.array([geodesic_angle_deg(a, twin_of(b)) for a, b in zip(R_pred, R_gt, strict=True)])
     dt = np.asarray(t_pred, dtype=np.float64) - np.asarray(t_gt, dtype=np.float64)
+    confident_wrong = float("nan")
+    if heading_confidence is not None:
+        sure = np.asarray(heading_confidence, dtype=np.float64) >= CONFIDENT_HEADING  # NaN: False
+        confident_wrong = 100.0 * float(np.mean(sure & (ang > WRONG_HEADING_DEG)))
     return PoseErrors(
         n,
         float(ang.mean()),
         float(np.sqrt(np.mean(np.sum(dt**2, axis=1)))),
         float(np.mean(np.abs(dt))),
         float(np.minimum(ang, ang_twin).mean()),
+        confident_wrong,
     )
 
 
@@ -117,6 +135,7 @@ class SequenceResult:
             "rmse_m": rounded(self.filtered.rmse_m),
             "mae_abs_m": rounded(self.filtered.mae_abs_m),
             "mae_angle_up_to_twin_deg": rounded(self.filtered.mae_angle_up_to_twin_deg),
+            "confident_wrong_pct": rounded(self.filtered.confident_wrong_pct),
             "ap_kp": rounded(self.ap_kp),
             "sr90": rounded(self.sr90),
             "sr95": rounded(self.sr95),
@@ -161,7 +180,7 @@ def evaluate_sequence(
         # The filter is told the true keypoint noise (floor 0.1 px), as a tuned deployment would be.
         pipeline, poses = None, PoseTracker(seq.camera, spec, keypoint_sigma_px=max(oracle_noise_px, 0.1))
 
-    s = {k: [] for k in ("t", "R_gt", "t_gt", "R_f", "t_f", "R_raw", "t_raw", "has_f", "has_raw")}
+    s = {k: [] for k in ("t", "R_gt", "t_gt", "R_f", "t_f", "conf_f", "R_raw", "t_raw", "has_f", "has_raw")}
     kp_pred, kp_gt, areas, has_pred, scores = [], [], [], [], []
     proc_s, n_frames = 0.0, 0
     iterator = frames
@@ -193,6 +212,7 @@ def evaluate_sequence(
         s["has_f"].append(bool(live))
         s["R_f"].append(quat_wxyz_to_matrix(live[0].quaternion_wxyz) if live else np.full((3, 3), np.nan))
         s["t_f"].append(live[0].position_m if live else np.full(3, np.nan))
+        s["conf_f"].append(live[0].heading_confidence if live else np.nan)
         s["has_raw"].append(meas is not None)
         s["R_raw"].append(meas.R if meas is not None else np.full((3, 3), np.nan))
         s["t_raw"].append(meas.t if meas is not None else np.full(3, np.nan))
@@ -206,7 +226,9 @@ def evaluate_sequence(
     f, r = series.get("has_f", np.zeros(0, bool)), series.get("has_raw", np.zeros(0, bool))
     n_ann = len(kp_gt)
     filtered = (
-        pose_errors(series["R_f"][f], series["t_f"][f], series["R_gt"][f], series["t_gt"][f])
+        pose_errors(
+            series["R_f"][f], series["t_f"][f], series["R_gt"][f], series["t_gt"][f], series["conf_f"][f]
+        )
         if n_ann
         else pose_errors([], [], [], [])
     )
@@ -252,7 +274,10 @@ def table_vi(results: list[SequenceResult]) -> str:
             ("RMSE (m)", "rmse_m", "{:8.3f}"),
             ("MAE-absolute (m)", "mae_abs_m", "{:8.3f}"),
             ("MAE-ang mod twin", "mae_angle_up_to_twin_deg", "{:8.2f}"),
+            ("conf>90 (%)", "confident_wrong_pct", "{:8.2f}"),
         ):
+            if label == "raw PnP" and attr == "confident_wrong_pct":
+                continue  # a measurement carries no heading confidence
             vals = [getattr(get(res), attr) for res in results]
             weights = [get(res).frames for res in results]
             avg = weighted_average(vals, weights, rms=attr == "rmse_m")

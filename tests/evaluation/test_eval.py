@@ -31,6 +31,9 @@ def test_oracle_without_noise_is_exact(seq13, capsys):
     assert out["mae_angle_up_to_twin_deg"] <= out["mae_angle_deg"]
     assert out["raw_pnp"]["mae_angle_deg"] < 0.01 and out["raw_pnp"]["rmse_m"] < 0.001
     assert out["sr95"] == 100.0
+    # No front/back head in the oracle: no confidence, so nothing is confidently wrong; a raw
+    # measurement carries no confidence at all.
+    assert out["confident_wrong_pct"] == 0.0 and out["raw_pnp"]["confident_wrong_pct"] is None
 
 
 def test_oracle_filter_beats_raw_pnp(seq13, capsys, tmp_path):
@@ -115,3 +118,18 @@ def test_mae_angle_up_to_twin_sets_front_and_back_aside():
     assert abs(e.mae_angle_deg - 180) < 0.5  # a half turn about z composed with a tilt is a half turn
     assert abs(e.mae_angle_up_to_twin_deg - 2.5) < 1e-6
     assert e.to_dict()["mae_angle_up_to_twin_deg"] == round(e.mae_angle_up_to_twin_deg, 4)
+    assert e.to_dict()["confident_wrong_pct"] is None  # no confidences given
+
+
+def test_confidently_wrong_counts_the_sure_wrong_frames_only():
+    from scipy.spatial.transform import Rotation
+
+    from dronekey.evaluation.pose import pose_errors
+    from dronekey.tracking.heading import twin_of
+
+    R_gt = Rotation.from_euler("xyz", [10, -20, 45], degrees=True).as_matrix()
+    t = np.zeros((4, 3))
+    R_pred = [twin_of(R_gt), twin_of(R_gt), twin_of(R_gt), R_gt]  # three read backwards, one right
+    e = pose_errors(R_pred, t, [R_gt] * 4, t, heading_confidence=[0.9, 0.2, np.nan, 0.95])
+    assert e.confident_wrong_pct == 25.0  # sure and wrong; unsure, unknown and sure-and-right do not count
+    assert pose_errors(R_pred, t, [R_gt] * 4, t, heading_confidence=[0.5] * 4).confident_wrong_pct == 75.0

@@ -40,7 +40,12 @@ from pathlib import Path
 
 import numpy as np
 
-from dronekey.evaluation.pose import published_track_rank, sequence_spec
+from dronekey.evaluation.pose import (
+    CONFIDENT_HEADING,
+    WRONG_HEADING_DEG,
+    published_track_rank,
+    sequence_spec,
+)
 from dronekey.evaluation.robustness.dither import FrameDither
 from dronekey.geometry.rotations import geodesic_angle_deg, quat_wxyz_to_matrix
 from dronekey.perception.keypoint_order import HEADING_TWIN, SYMMETRIES
@@ -72,8 +77,6 @@ __all__ = [
 
 MATCH_GATE_M = 0.5
 MATCH_GATE_FRACTION = 0.25
-WRONG_HEADING_DEG = 90.0
-CONFIDENT_HEADING = 0.5
 LINE_OF_SIGHT_FACTOR = 2.0
 # A detection's keypoint order is decided when its mean error to the nearer of the true order and
 # its front/back twin is below this fraction of the error to the other (as the classifier's
