@@ -8,7 +8,10 @@ what a camera sends, not MPEG-4 Part 2 from OpenCV's writer. The encoder is set 
   buffer at 1.5 times the target as a camera's rate control does;
 - a keyframe every two seconds (``g``), as the usual camera default;
 - libx264's ``fast`` preset (a camera encoder has a fixed budget; ``medium`` takes twice as long
-  for little gain at these bitrates).
+  for little gain at these bitrates);
+- one encoder thread, so the same seed gives the same bytes: with frame threads, libx264 plans
+  each frame's VBV budget from frames still being encoded, and the file changed from run to run
+  (a render is bound by drawing, not encoding: a 60-frame 1080p render 15.5 -> 16.5-17.8 s).
 
 The file is an MP4 whose frames carry presentation timestamps ``index / fps``.
 """
@@ -63,6 +66,7 @@ class H264VideoSink:
                 "g": str(max(1, round(_KEYFRAME_INTERVAL_S * fps))),
                 "maxrate": str(round(self.bitrate_bps * _MAXRATE_FACTOR)),
                 "bufsize": str(self.bitrate_bps),
+                "threads": "1",
             }
             self._stream = self._container.add_stream("libx264", rate=rate, options=options)
             self._stream.width, self._stream.height = width, height
