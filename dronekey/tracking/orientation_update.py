@@ -13,7 +13,8 @@ swap roles). They are floored at ``-branch_confidence_cap`` so that no amount of
 track deaf to later evidence. Frames that cannot tell the solutions apart add nothing.
 
 A rotation that fails the gate with no usable alternative is skipped (the position is still used);
-after ``rotation_reset_after`` in a row the orientation is re-initialised from the measurement.
+after ``rotation_reset_after`` in a row the orientation is re-initialised from the measurement, and
+``update_orientation`` says so (the caller may restart the front/back evidence with it).
 """
 
 from __future__ import annotations
@@ -32,9 +33,11 @@ __all__ = ["update_orientation"]
 log = logging.getLogger(__name__)
 
 
-def update_orientation(track: TrackRecord, m: PoseMeasurement, config: TrackerConfig) -> None:
+def update_orientation(track: TrackRecord, m: PoseMeasurement, config: TrackerConfig) -> bool:
     """Fold the rotation of ``m`` (already turned to the track's front) into the track's
-    orientation, switching IPPE solutions or re-initialising as the evidence says."""
+    orientation, switching IPPE solutions or re-initialising as the evidence says. Returns True
+    when the orientation was re-initialised on ``m`` after gated-out rotations (the track then
+    follows the measurement's front, not the one its front/back evidence was gathered for)."""
     cfg = config
     rot_cov = m.covariance[3:, 3:]
     branches = [(m.R, m.reprojection_px)]
@@ -55,11 +58,11 @@ def update_orientation(track: TrackRecord, m: PoseMeasurement, config: TrackerCo
             )
             track.reinitialise_orientation(other_R, rot_cov, cfg)
             track.branch_evidence = -evidence  # own and other swap roles
-            return
+            return False
     if d2[own] <= cfg.rotation_gate_chi2:
         track.orientation.update(branches[own][0], rot_cov)
         track.rotation_misses = 0
-        return
+        return False
     track.rotation_misses += 1
     log.debug("track %d: rotation gated out (d2 = %.1f)", track.track_id, d2[own])
     if track.rotation_misses >= cfg.rotation_reset_after:
@@ -69,3 +72,5 @@ def update_orientation(track: TrackRecord, m: PoseMeasurement, config: TrackerCo
             track.rotation_misses,
         )
         track.reinitialise_orientation(m.R, rot_cov, cfg)
+        return True
+    return False

@@ -157,6 +157,13 @@ class TrackRecord:
                 evidence if mean is None else mean + self.heading_look_rate * (evidence - mean)
             )
 
+    def restart_heading(self, heading_p: float) -> None:
+        """Forget the front/back evidence (the accumulated, the look's mean and the flight's) and
+        start again from ``heading_p`` in full, as a new track does."""
+        self.heading_log_odds, self.heading_look_log_odds = None, None
+        self.heading_motion_log_odds = 0.0
+        self.add_heading_evidence(heading_p, 1.0)
+
     def turn_heading_around(self) -> None:
         """The followed front becomes the back: every log-odds for it changes sign."""
         if self.heading_log_odds is not None:

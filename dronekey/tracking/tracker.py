@@ -382,7 +382,8 @@ class Tracker:
         cfg = self.config
         track.position.update(m.t, m.covariance[:3, :3])
         m, heading_p = update_heading(track, m, heading_p, cfg)
-        update_orientation(track, m, cfg)
+        if update_orientation(track, m, cfg) and cfg.heading_restart_on_reset:
+            track.restart_heading(heading_p)
         track.evidence.append(hit._replace(range_m=float(np.linalg.norm(m.t))))
         change, score = hit.change, hit.presence
         if math.isfinite(change):

@@ -124,6 +124,14 @@ class TrackerConfig:
         MAE-angle 18.1 / 17.6 / 15.3 / 15.2 / 15.3 deg; docs/evaluation.md).
     heading_switch_log_odds : log-odds against the followed front at which a track turns around.
     heading_confidence_cap : the most log-odds a track can gather either way (7: about 1000 to 1).
+    heading_restart_on_reset : when a track's orientation is re-initialised on a measurement after
+        ``rotation_reset_after`` gated-out rotations, its front/back evidence starts again from that
+        measurement's word, as a new track's does: the evidence was gathered for the old
+        orientation, and the new one is often a quarter or half turn from it (a run of
+        quarter-turned orders). Kept, the track published 0.66-0.86 confidence on an attitude
+        97-180 deg off (Tab. VI seed 101, seq11, frames 71-80). Off by default: on the tuning
+        seeds it removed 6 of 56 confidently wrong frames, short of its rule's fifth, and changed
+        nothing else beyond noise (docs/evaluation.md, forty-first session).
     heading_look_frames : time constant, frames, of the running mean of the front/back classifier's
         per-frame log-odds; the published confidence never exceeds what that mean says (0: off, the
         accumulated log-odds are published).
@@ -182,6 +190,7 @@ class TrackerConfig:
     heading_evidence_weight: float = 0.05
     heading_switch_log_odds: float = 1.5
     heading_confidence_cap: float = 7.0
+    heading_restart_on_reset: bool = False
     heading_look_frames: float = 30.0
     heading_from_motion: float = 0.0
     heading_full_spread_px: float = 0.0
@@ -191,6 +200,10 @@ class TrackerConfig:
     def __post_init__(self) -> None:
         for f in fields(self):
             value = getattr(self, f.name)
+            if f.type == "bool":
+                if not isinstance(value, bool | np.bool_):
+                    raise ValueError(f"TrackerConfig.{f.name} must be true or false, got {value!r}")
+                continue
             if f.type == "int":
                 lowest = 0 if f.name in _MAY_BE_ZERO else 1
                 if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < lowest:

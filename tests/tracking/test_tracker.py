@@ -147,6 +147,24 @@ def test_orientation_is_reinitialised_after_repeated_gated_rotations():
     assert track.track_id == 1
 
 
+@pytest.mark.parametrize("restart", [False, True])
+def test_a_reinitialised_orientation_restarts_the_front_back_evidence_when_asked(restart):
+    config = TrackerConfig(rotation_reset_after=3, heading_restart_on_reset=restart)
+    tracker = Tracker(config)
+    position = np.array([0.0, 0.0, 5.0])
+    for k in range(30):  # the look is sure of the front
+        (track,) = tracker.update(t_ns(k), [measurement(seen_from_below(20.0), position)], heading_p=[0.95])
+    assert track.heading_confidence > 0.85
+    turned = seen_from_below(100.0)  # a quarter-turned order, read unsure
+    for k in range(30, 33):
+        (track,) = tracker.update(t_ns(k), [measurement(turned, position)], heading_p=[0.55])
+    assert geodesic_angle_deg(quat_wxyz_to_matrix(track.quaternion_wxyz), turned) < 1.0  # re-initialised
+    if restart:  # the new orientation's front has only this frame's word: logit(0.55) in full
+        assert track.heading_confidence == pytest.approx(math.tanh(math.log(0.55 / 0.45) / 2))
+    else:  # the old orientation's evidence stays with the new one
+        assert track.heading_confidence > 0.85
+
+
 # ---------------------------------------------------------------------- time and lifecycle
 def test_velocity_uses_the_real_time_step():
     rng = np.random.default_rng(2)
