@@ -119,6 +119,7 @@ def _cmd_pose(args: argparse.Namespace) -> int:
                 f"{folder} lacks {', '.join(missing)}; render them with: "
                 f"for s in seq11 seq12 seq13; do dronekey-sim --preset $s --seed 101 --out {folder}; done"
             )
+    localizer, tracker = _pipeline_configs(args, {}, {})
     results = []
     for path in paths:
         seq, frames = _load(path, args.video if args.sequence else None)
@@ -130,16 +131,21 @@ def _cmd_pose(args: argparse.Namespace) -> int:
             args.oracle_noise,
             progress=sys.stderr.isatty(),
             mirror_average=not args.no_mirror_average,
+            tracker=tracker,
+            localizer=localizer,
         )
         results.append(res)
         if args.plot:
             plot_sequence(res, args.plot)
+    changed = pipeline_changes(localizer, tracker)
+    if not args.json and describe_pipeline_changes(changed):
+        print("settings: " + "; ".join(describe_pipeline_changes(changed)) + "\n")
     if args.sequence:
         out = results[0].to_dict()
         if args.oracle_noise is not None:
             out["oracle_noise_px"] = args.oracle_noise
         if args.json:
-            print(json.dumps(out))
+            print(json.dumps({**out, "settings": changed}))
         else:
             print(table_vi(results))
             print(f"AP^kp {out['ap_kp']}  SR90 {out['sr90']}  SR95 {out['sr95']}  {out['fps']} fps")
@@ -157,7 +163,7 @@ def _cmd_pose(args: argparse.Namespace) -> int:
                 errs = [getattr(getattr(r, kind), attr) for r in results]
                 weights = [getattr(r, kind).frames for r in results]
                 avg.setdefault(kind, {})[key] = rounded(weighted_average(errs, weights, rms=key == "rmse_m"))
-        print(json.dumps({"sequences": [r.to_dict() for r in results], "average": avg}))
+        print(json.dumps({"sequences": [r.to_dict() for r in results], "average": avg, "settings": changed}))
     else:
         print(table_vi(results))
     return 0
@@ -430,6 +436,7 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument(
         "--no-mirror-average", action="store_true", help="run each crop once (the daemon's default averages)"
     )
+    _add_override_flags(q)
     q.add_argument("--json", action="store_true", help="print one JSON object")
     q.set_defaults(func=_cmd_pose)
     m = sub.add_parser(

@@ -35,8 +35,10 @@ from tqdm import tqdm
 from dronekey.evaluation.metrics import ap_kp, oks_drone, sr
 from dronekey.geometry.drone_spec import DroneSpec, load_spec
 from dronekey.geometry.rotations import geodesic_angle_deg, quat_wxyz_to_matrix
+from dronekey.perception.localizer import LocalizerConfig
 from dronekey.pipeline import PoseTracker, TrackingPipeline
 from dronekey.tracking.heading import twin_of
+from dronekey.tracking.tracker_config import TrackerConfig
 from dronekey.types import PUBLISHED_STATUSES, Frame, KeypointDetection, TrackStatus
 
 __all__ = [
@@ -169,16 +171,27 @@ def evaluate_sequence(
     seed: int = 0,
     progress: bool = False,
     mirror_average: bool = True,
+    tracker: TrackerConfig | None = None,
+    localizer: LocalizerConfig | None = None,
 ) -> SequenceResult:
-    """Run the pipeline over ``frames`` (an iterable of ``SequenceFrame``) of the loaded ``seq``."""
+    """Run the pipeline over ``frames`` (an iterable of ``SequenceFrame``) of the loaded ``seq``.
+    ``tracker`` / ``localizer``: settings to measure instead of the shipped ones (None: shipped)."""
     spec = sequence_spec(seq)
     rng = np.random.default_rng(seed)
     if oracle_noise_px is None:
-        pipeline = TrackingPipeline(seq.camera, model_path, drone=spec, mirror_average=mirror_average)
+        pipeline = TrackingPipeline(
+            seq.camera,
+            model_path,
+            drone=spec,
+            mirror_average=mirror_average,
+            tracker=tracker,
+            localizer=localizer,
+        )
         poses = pipeline.poses
     else:
         # The filter is told the true keypoint noise (floor 0.1 px), as a tuned deployment would be.
-        pipeline, poses = None, PoseTracker(seq.camera, spec, keypoint_sigma_px=max(oracle_noise_px, 0.1))
+        pipeline = None
+        poses = PoseTracker(seq.camera, spec, keypoint_sigma_px=max(oracle_noise_px, 0.1), tracker=tracker)
 
     s = {k: [] for k in ("t", "R_gt", "t_gt", "R_f", "t_f", "conf_f", "R_raw", "t_raw", "has_f", "has_raw")}
     kp_pred, kp_gt, areas, has_pred, scores = [], [], [], [], []

@@ -36,6 +36,16 @@ def test_oracle_without_noise_is_exact(seq13, capsys):
     assert out["confident_wrong_pct"] == 0.0 and out["raw_pnp"]["confident_wrong_pct"] is None
 
 
+def test_pose_measures_a_tracker_setting_and_says_so(seq13, capsys):
+    argv = ["pose", "--sequence", str(seq13), "--oracle-noise", "0", "--json"]
+    out = _run(capsys, *argv, "--tracker", "confirm_hits=5")
+    assert out["settings"]["tracker_changed"] == {"confirm_hits": 5}
+    assert out["detected_frames"] == 20  # confirmed from the 5th hit on, not the 3rd
+    assert _run(capsys, *argv)["settings"] == {"localizer_changed": {}, "tracker_changed": {}}
+    assert main(["pose", "--sequence", str(seq13), "--tracker", "no_such_setting=1"]) == 2
+    assert "--tracker" in capsys.readouterr().err
+
+
 def test_oracle_filter_beats_raw_pnp(seq13, capsys, tmp_path):
     plot = tmp_path / "fig10.png"
     out = _run(capsys, "pose", "--sequence", str(seq13), "--oracle-noise", "2", "--plot", str(plot), "--json")
