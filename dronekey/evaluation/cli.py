@@ -138,8 +138,9 @@ def _cmd_pose(args: argparse.Namespace) -> int:
         if args.plot:
             plot_sequence(res, args.plot)
     changed = pipeline_changes(localizer, tracker)
-    if not args.json and describe_pipeline_changes(changed):
-        print("settings: " + "; ".join(describe_pipeline_changes(changed)) + "\n")
+    settings = describe_pipeline_changes(changed)
+    if settings and not args.json:
+        print("settings: " + "; ".join(settings) + "\n")
     if args.sequence:
         out = results[0].to_dict()
         if args.oracle_noise is not None:
