@@ -9,9 +9,11 @@ what a camera sends, not MPEG-4 Part 2 from OpenCV's writer. The encoder is set 
 - a keyframe every two seconds (``g``), as the usual camera default;
 - libx264's ``fast`` preset (a camera encoder has a fixed budget; ``medium`` takes twice as long
   for little gain at these bitrates);
-- one encoder thread, so the same seed gives the same bytes: with frame threads, libx264 plans
-  each frame's VBV budget from frames still being encoded, and the file changed from run to run
-  (a render is bound by drawing, not encoding: a 60-frame 1080p render 15.5 -> 16.5-17.8 s).
+- the same frames give the same bytes, so a seed's render reproduces: one encoder thread (with
+  frame threads, libx264 plans each frame's VBV budget from frames still being encoded) and no
+  rate-control lookahead (``rc-lookahead=0``: with it, the first encode in a process still came
+  out differently; a camera's low-latency encoder has none either). A render is bound by drawing,
+  not encoding: 60 frames of seq11 at 1080p in 12.9-13.9 s on the idle box.
 
 The file is an MP4 whose frames carry presentation timestamps ``index / fps``.
 """
@@ -66,13 +68,16 @@ class H264VideoSink:
                 "g": str(max(1, round(_KEYFRAME_INTERVAL_S * fps))),
                 "maxrate": str(round(self.bitrate_bps * _MAXRATE_FACTOR)),
                 "bufsize": str(self.bitrate_bps),
-                "threads": "1",
+                "x264-params": "rc-lookahead=0",
             }
             self._stream = self._container.add_stream("libx264", rate=rate, options=options)
             self._stream.width, self._stream.height = width, height
             self._stream.pix_fmt = "yuv420p"
             self._stream.bit_rate = self.bitrate_bps
             self._stream.codec_context.time_base = 1 / rate
+            # One encoder thread (the module's notes). PyAV hands the codec its own thread_count
+            # (0: auto) over an options-dict "threads", so it is set here.
+            self._stream.codec_context.thread_count = 1
         except BaseException:
             self._container.close()
             raise
