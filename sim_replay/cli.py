@@ -409,15 +409,11 @@ def _render_scene(args: argparse.Namespace, width: int, height: int, codec: str)
     total = first.n_frames * len(scene.views)
     with tqdm(total=total, unit="frame", desc=first.name, disable=None, leave=False) as bar:
         try:
+            video = dict(images=args.images, on_frame=bar.update, codec=codec, bitrate_bps=args.bitrate)
             if args.cameras == 1:
-                written, site_path = (
-                    [write_sequence(first, args.out, images=args.images, on_frame=bar.update)],
-                    None,
-                )
+                written, site_path = [write_sequence(first, args.out, **video)], None
             else:
-                written, site_path = write_rig(
-                    scene.views, scene.site, args.out, images=args.images, on_frame=bar.update
-                )
+                written, site_path = write_rig(scene.views, scene.site, args.out, **video)
         except OSError as exc:
             print(f"{PROG}: error: {exc}", file=sys.stderr)
             return EXIT_WRITE_FAILED
