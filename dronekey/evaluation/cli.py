@@ -153,15 +153,15 @@ def _cmd_pose(args: argparse.Namespace) -> int:
         return 0
     if args.json:
         avg = {}
-        for key, attr in (
-            ("mae_angle_deg", "mae_angle_deg"),
-            ("rmse_m", "rmse_m"),
-            ("mae_abs_m", "mae_abs_m"),
-            ("mae_angle_up_to_twin_deg", "mae_angle_up_to_twin_deg"),
-            ("confident_wrong_pct", "confident_wrong_pct"),
+        for key in (
+            "mae_angle_deg",
+            "rmse_m",
+            "mae_abs_m",
+            "mae_angle_up_to_twin_deg",
+            "confident_wrong_pct",
         ):
             for kind in ("filtered", "raw"):
-                errs = [getattr(getattr(r, kind), attr) for r in results]
+                errs = [getattr(getattr(r, kind), key) for r in results]
                 weights = [getattr(r, kind).frames for r in results]
                 avg.setdefault(kind, {})[key] = rounded(weighted_average(errs, weights, rms=key == "rmse_m"))
         print(json.dumps({"sequences": [r.to_dict() for r in results], "average": avg, "settings": changed}))
