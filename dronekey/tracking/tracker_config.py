@@ -128,10 +128,11 @@ class TrackerConfig:
         ``rotation_reset_after`` gated-out rotations, its front/back evidence starts again from that
         measurement's word, as a new track's does: the evidence was gathered for the old
         orientation, and the new one is often a quarter or half turn from it (a run of
-        quarter-turned orders). Kept, the track published 0.66-0.86 confidence on an attitude
-        97-180 deg off (Tab. VI seed 101, seq11, frames 71-80). Off by default: on the tuning
-        seeds it removed 6 of 56 confidently wrong frames, short of its rule's fifth, and changed
-        nothing else beyond noise (docs/evaluation.md, forty-first session).
+        quarter-turned orders). Kept, the track published 0.53-0.87 confidence on an attitude
+        107-177 deg off (Tab. VI seed 101, seq11, frames 266-280, after a reset at 266). Off by
+        default: on the tuning seeds it removed 6 of 56 confidently wrong frames, short of its
+        rule's fifth, and changed nothing else beyond noise (docs/evaluation.md, forty-first
+        session).
     heading_look_frames : time constant, frames, of the running mean of the front/back classifier's
         per-frame log-odds; the published confidence never exceeds what that mean says (0: off, the
         accumulated log-odds are published).
