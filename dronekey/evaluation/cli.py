@@ -97,8 +97,7 @@ def _load(json_path: Path, video: str | None) -> tuple[SequenceAnnotations, Iter
 def _cmd_pose(args: argparse.Namespace) -> int:
     if (args.sequence is None) == (args.all is None):
         raise _UsageError("give exactly one of --sequence FILE.json or --all DIR")
-    if args.oracle_noise is not None and args.oracle_noise < 0:
-        raise _UsageError(f"--oracle-noise must be >= 0 px, got {args.oracle_noise}")
+    _check_oracle_noise(args)
     if args.plot:
         if args.sequence is None:
             raise _UsageError("--plot draws one sequence: use it with --sequence")
@@ -244,6 +243,7 @@ def _cmd_robustness(args: argparse.Namespace) -> int:
         raise _UsageError(f"--heading-full-spread must be a finite number >= 0, got {spread}")
     if args.measure_every < 1:
         raise _UsageError(f"--measure-every must be >= 1, got {args.measure_every}")
+    _check_oracle_noise(args)
     if args.seeds is not None:
         negative = [s for s in args.seeds if s < 0]
         if negative:
@@ -282,6 +282,7 @@ def _cmd_robustness(args: argparse.Namespace) -> int:
             localizer=localizer,
             tracker=tracker,
             measure_every=args.measure_every,
+            oracle_noise_px=args.oracle_noise,
         )
     except ImportError as exc:  # --background photos without scikit-image / scikit-learn
         raise _UsageError(str(exc)) from None
@@ -323,6 +324,11 @@ def _pipeline_configs(
     except OverrideError as exc:
         raise _UsageError(str(exc)) from None
     return localizer, tracker
+
+
+def _check_oracle_noise(args: argparse.Namespace) -> None:
+    if args.oracle_noise is not None and not 0 <= args.oracle_noise < math.inf:
+        raise _UsageError(f"--oracle-noise must be a finite number >= 0 px, got {args.oracle_noise}")
 
 
 def _add_dither_flag(parser: argparse.ArgumentParser) -> None:
@@ -548,6 +554,14 @@ def build_parser() -> argparse.ArgumentParser:
         "(TrackingPipeline's "
         "measure_every, the daemon's tracking.measure_every; 1 as shipped); AP^kp then counts the "
         "measured frames",
+    )
+    r.add_argument(
+        "--oracle-noise",
+        type=float,
+        metavar="PX",
+        help="no network: every drone's true keypoints plus Gaussian noise of PX per coordinate through "
+        "the pipeline's PnP and tracker (the filter told PX): the RMSE and MAE-angle the pose stage alone "
+        "reaches at that precision, a floor for any detector (detection and false tracks are not measured)",
     )
     r.add_argument(
         "--cue-free",

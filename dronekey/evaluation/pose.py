@@ -33,13 +33,13 @@ import numpy as np
 from tqdm import tqdm
 
 from dronekey.evaluation.metrics import ap_kp, oks_drone, sr
+from dronekey.evaluation.oracle import frame_runner
 from dronekey.geometry.drone_spec import DroneSpec, load_spec
 from dronekey.geometry.rotations import geodesic_angle_deg, quat_wxyz_to_matrix
 from dronekey.perception.localizer import LocalizerConfig
-from dronekey.pipeline import PoseTracker, TrackingPipeline
 from dronekey.tracking.heading import twin_of
 from dronekey.tracking.tracker_config import TrackerConfig
-from dronekey.types import PUBLISHED_STATUSES, Frame, KeypointDetection, TrackStatus
+from dronekey.types import PUBLISHED_STATUSES, Frame, TrackStatus
 
 __all__ = [
     "CONFIDENT_HEADING",
@@ -177,21 +177,16 @@ def evaluate_sequence(
     """Run the pipeline over ``frames`` (an iterable of ``SequenceFrame``) of the loaded ``seq``.
     ``tracker`` / ``localizer``: settings to measure instead of the shipped ones (None: shipped)."""
     spec = sequence_spec(seq)
-    rng = np.random.default_rng(seed)
-    if oracle_noise_px is None:
-        pipeline = TrackingPipeline(
-            seq.camera,
-            model_path,
-            drone=spec,
-            mirror_average=mirror_average,
-            tracker=tracker,
-            localizer=localizer,
-        )
-        poses = pipeline.poses
-    else:
-        # The filter is told the true keypoint noise (floor 0.1 px), as a tuned deployment would be.
-        pipeline = None
-        poses = PoseTracker(seq.camera, spec, keypoint_sigma_px=max(oracle_noise_px, 0.1), tracker=tracker)
+    run = frame_runner(
+        seq.camera,
+        spec,
+        model_path,
+        oracle_noise_px=oracle_noise_px,
+        oracle_seed=seed,
+        tracker=tracker,
+        mirror_average=mirror_average,
+        localizer=localizer,
+    )
 
     s = {k: [] for k in ("t", "R_gt", "t_gt", "R_f", "t_f", "conf_f", "R_raw", "t_raw", "has_f", "has_raw")}
     kp_pred, kp_gt, areas, has_pred, scores = [], [], [], [], []
@@ -203,17 +198,8 @@ def evaluate_sequence(
         frame = Frame(sf.index, sf.t_ns, sf.bgr)
         ann = sf.record.drone
         t0 = time.perf_counter()
-        if pipeline is not None:
-            out = pipeline.process(frame)
-            tracks, det, meas = out.tracks, out.detection, out.measurement
-        else:
-            det = None
-            if ann is not None:
-                noisy = ann.keypoints_px + rng.normal(0.0, oracle_noise_px, ann.keypoints_px.shape)
-                det = KeypointDetection(noisy, 1.0, (0, 0, 1))
-            prior = poses.prior(frame.t_ns)
-            meas = poses.measure(det, prior)[0] if det is not None else None
-            tracks = poses.track(frame.t_ns, meas, det)
+        out = run(frame, ann)
+        tracks, det, meas = out.tracks, out.detection, out.measurement
         proc_s += time.perf_counter() - t0
         n_frames += 1
         if ann is None or not getattr(ann, "has_pose", True):

@@ -17,6 +17,7 @@ from dronekey.evaluation.robustness.scoring import (
     SequenceScores,
     axis_exchanged,
     front_back_verdict,
+    keypoint_error_px,
     match_gate_m,
     miss_reason,
     on_line_of_sight,
@@ -68,6 +69,7 @@ METRICS = {
     "front_back_right_pct",
     "axis_frames",
     "axis_exchanged_pct",
+    "kp_err_px_median",
     "range_doubt_frames",
     "range_within_1sd_pct",
     "range_within_2sd_pct",
@@ -325,6 +327,38 @@ def test_summary_counts_detections_whose_order_exchanges_the_axes():
     assert out["axis_frames"] == 3 and out["axis_exchanged_pct"] == pytest.approx(33.33)
 
 
+def test_keypoint_error_forgives_the_front_back_twin_but_not_a_quarter_turn():
+    truth = np.array([[65.5, 84.0], [-65.5, 84.0], [-65.5, -84.0], [65.5, -84.0]]) + 200.0
+    shifted = truth + np.array([3.0, 4.0])
+    detections = np.stack([shifted, shifted[list(HEADING_TWIN)], truth[[1, 2, 3, 0]]])
+    err = keypoint_error_px(detections, truth[None])
+    np.testing.assert_allclose(err[:2], 5.0)  # in order and its twin: 5 px each
+    assert err[2].min() > 100  # turned a quarter: each keypoint on a neighbour's hub
+    assert np.isnan(keypoint_error_px(truth + 300.0, truth)).all()  # another object
+    assert np.isnan(keypoint_error_px(np.full((4, 2), np.nan), truth)).all()
+
+
+def test_oracle_keypoints_measure_the_pose_stage_alone(tiny):
+    out, _ = tiny
+    # The same renders, no network: the true keypoints go through PnP and the tracker.
+    exact = run_robustness(out, **TINY, oracle_noise_px=0.0)
+    assert exact.settings["oracle_noise_px"] == 0.0 and exact.settings["reused_sequences"] == 4
+    rows = {(by, value): summary for by, value, summary in exact.group_summaries()}
+    drone = rows[("all", "drone sequences")]
+    # the filter's constant-velocity lag over its first hits: centimetres
+    assert drone["rmse_m"] < 0.05 and drone["mae_angle_deg"] < 1.0 and drone["kp_err_px_median"] == 0.0
+    assert drone["detected_pct"] == pytest.approx(100 * 8 / 12, abs=0.01)  # confirmed from the 3rd hit on
+    assert rows[("drone-free", "drone-free")]["false_track_frames"] == 0  # nothing to track
+    assert "ORACLE: no network, the true keypoints with 0 px of noise" in exact.table().splitlines()[0]
+    # Half a pixel on drones a few pixels across (320 x 180): the pose stage's floor rises.
+    noisy = run_robustness(out, **TINY, oracle_noise_px=0.5)
+    drone = {(by, v): s for by, v, s in noisy.group_summaries()}[("all", "drone sequences")]
+    assert 0.45 < drone["kp_err_px_median"] < 0.75  # 1.18 sigma: the median of a 2-D Gaussian's radius
+    assert drone["rmse_m"] > rows[("all", "drone sequences")]["rmse_m"]
+    again = {(by, v): s for by, v, s in run_robustness(out, **TINY, oracle_noise_px=0.5).group_summaries()}
+    assert again[("all", "drone sequences")] == drone  # seeded by the scene seeds
+
+
 def test_wrong_heading_is_a_geodesic_angle_over_90_deg():
     # The front/back twin (180 deg of yaw) is the case the metric is for.
     from dronekey.geometry.rotations import geodesic_angle_deg
@@ -494,6 +528,8 @@ SETTINGS_UNDER_MEASURE = [
      "-1", "--heading-full-spread must be a finite number >= 0, got -1.0"),
     ("--measure-every", "2", "measure_every", 2, "confirmed drones measured every 2 frames",
      "0", "--measure-every must be >= 1, got 0"),
+    ("--oracle-noise", "1", "oracle_noise_px", 1.0, "ORACLE: no network, the true keypoints with 1 px",
+     "-1", "--oracle-noise must be a finite number >= 0 px, got -1.0"),
 ]  # fmt: skip
 
 
@@ -504,6 +540,7 @@ def test_cli_pipeline_settings_under_measure_are_recorded_and_named_in_the_table
     settings = json.loads(capsys.readouterr().out)["settings"]
     assert settings["acquire_recut"] is None and settings["confirm_max_outliers"] == 0  # as shipped
     assert settings["heading_full_spread_px"] == 0.0 and settings["measure_every"] == 1
+    assert settings["oracle_noise_px"] is None
     for flag, value, key, recorded, words, bad, error in SETTINGS_UNDER_MEASURE:
         assert main([*argv, flag, value, "--json"]) == 0
         assert json.loads(capsys.readouterr().out)["settings"][key] == recorded

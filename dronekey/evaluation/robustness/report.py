@@ -57,7 +57,8 @@ _COLUMNS = (
 
 # The second table: where the frames without the drone's track went, the front/back classifier per
 # detection, the detections whose order exchanges the body's axes, and how often the true range lies
-# within one and two published standard deviations (``summary``'s notes).
+# within one and two published standard deviations, and the drone's keypoints' median error
+# (``summary``'s notes).
 _MISS_COLUMNS = (
     ("detected", "%", "detected_pct", "{:.1f}"),
     ("range", "%", "missed_wrong_range_pct", "{:.1f}"),
@@ -66,6 +67,7 @@ _MISS_COLUMNS = (
     ("f/b dets", "", "front_back_frames", "{:d}"),
     ("f/b ok", "%", "front_back_right_pct", "{:.1f}"),
     ("axis x", "%", "axis_exchanged_pct", "{:.1f}"),
+    ("kp err", "px", "kp_err_px_median", "{:.2f}"),
     ("rng<1sd", "%", "range_within_1sd_pct", "{:.1f}"),
     ("rng<2sd", "%", "range_within_2sd_pct", "{:.1f}"),
 )
@@ -141,6 +143,12 @@ class RobustnessReport:
                 else ""
             )
             + (", every drone cue-free (no front/back cue)" if st.get("cue_free") else "")
+            + (
+                f", ORACLE: no network, the true keypoints with {st['oracle_noise_px']:g} px of noise"
+                " (the pose stage's floor; detection and false tracks not measured)"
+                if st.get("oracle_noise_px") is not None
+                else ""
+            )
             + "".join(f", {change}" for change in describe_pipeline_changes(st)),
         ]
         if not st.get("model_has_heading_head", True):

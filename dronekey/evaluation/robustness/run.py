@@ -70,6 +70,7 @@ def run_robustness(
     localizer: LocalizerConfig | None = None,
     tracker: TrackerConfig | None = None,
     measure_every: int = 1,
+    oracle_noise_px: float | None = None,
 ) -> RobustnessReport:
     """Render the matrix (reusing what ``out_dir`` holds), run the pipeline and score it.
 
@@ -96,6 +97,10 @@ def run_robustness(
     localizer, tracker : the pipeline's configs, for a setting measured before it is shipped (the
         report's settings name the two that are off as shipped: ``acquire_recut``,
         ``confirm_max_outliers``); None: the defaults, as shipped.
+    oracle_noise_px : None (the pipeline), or the network replaced by every drone's true keypoints
+        with this much Gaussian noise (px; ``dronekey.evaluation.oracle``, seeded by each
+        sequence's scene seed): the RMSE and MAE-angle the pose stage alone reaches at that
+        precision.
 
     Returns
     -------
@@ -161,6 +166,7 @@ def run_robustness(
         "heading_full_spread_px": (tracker or TrackerConfig()).heading_full_spread_px,
         **pipeline_changes(localizer, tracker),
         "measure_every": int(measure_every),
+        "oracle_noise_px": None if oracle_noise_px is None else float(oracle_noise_px),
         "match_gate": {"min_m": MATCH_GATE_M, "range_fraction": MATCH_GATE_FRACTION},
         "wrong_heading_deg": WRONG_HEADING_DEG,
         "confident_heading": CONFIDENT_HEADING,
@@ -191,6 +197,8 @@ def run_robustness(
                 localizer=localizer,
                 tracker=tracker,
                 measure_every=measure_every,
+                oracle_noise_px=oracle_noise_px,
+                oracle_seed=r.entry.seed,
             )
             report.sequences.append(EvaluatedSequence(r, scores))
     settings["render_s"] = round(t1 - t0, 1)

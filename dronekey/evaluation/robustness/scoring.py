@@ -40,6 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
+from dronekey.evaluation.oracle import frame_runner
 from dronekey.evaluation.pose import (
     CONFIDENT_HEADING,
     WRONG_HEADING_DEG,
@@ -50,7 +51,6 @@ from dronekey.evaluation.robustness.dither import FrameDither
 from dronekey.geometry.rotations import geodesic_angle_deg, quat_wxyz_to_matrix
 from dronekey.perception.keypoint_order import HEADING_TWIN, SYMMETRIES
 from dronekey.perception.localizer import LocalizerConfig
-from dronekey.pipeline import TrackingPipeline
 from dronekey.sim_replay.annotations import SequenceAnnotations
 from dronekey.sim_replay.io.frames import iter_frames
 from dronekey.tracking.track_record import line_of_sight_variance
@@ -69,6 +69,7 @@ __all__ = [
     "SequenceScores",
     "axis_exchanged",
     "front_back_verdict",
+    "keypoint_error_px",
     "match_gate_m",
     "miss_reason",
     "range_z",
@@ -167,6 +168,24 @@ def axis_exchanged(kp_pred: np.ndarray, kp_true: np.ndarray) -> float:
     off the gate on the drone's line of sight (docs/evaluation.md, "A quarter turn of the order")."""
     exchanged = _nearer(kp_pred, kp_true, AXIS_EXCHANGING_ORDERS, AXIS_KEEPING_ORDERS)
     return float("nan") if exchanged is None else float(exchanged)
+
+
+def keypoint_error_px(kp_pred: np.ndarray, kp_true: np.ndarray) -> np.ndarray:
+    """Each keypoint's distance (px) from its true hub, the detection's order taken as the nearer of
+    the true one and its front/back twin (``HEADING_TWIN``), as the tracker keeps both; (N, 4) for
+    N detections (N, 4, 2) against the truth (N, 4, 2, spec order). A detection that is not of this
+    drone (centroid farther than half the true keypoints' extent, or not finite) gives NaN. A
+    quarter-turned order is not forgiven: it reads the drone at a wrong range."""
+    kp = np.asarray(kp_pred, dtype=np.float64).reshape(-1, 4, 2)
+    truth = np.asarray(kp_true, dtype=np.float64).reshape(-1, 4, 2)
+    in_order = np.linalg.norm(kp - truth, axis=2)
+    twin = np.linalg.norm(kp[:, list(HEADING_TWIN)] - truth, axis=2)
+    err = np.where(in_order.mean(axis=1, keepdims=True) <= twin.mean(axis=1, keepdims=True), in_order, twin)
+    extent = np.ptp(truth, axis=1).max(axis=1)
+    off = np.linalg.norm(kp.mean(axis=1) - truth.mean(axis=1), axis=1)
+    mine = np.isfinite(off) & (off <= 0.5 * extent)
+    err[~mine] = np.nan
+    return err
 
 
 def _nearer(kp_pred: np.ndarray, kp_true: np.ndarray, first, second) -> bool | None:
@@ -277,6 +296,8 @@ def score_sequence(
     localizer: LocalizerConfig | None = None,
     tracker: TrackerConfig | None = None,
     measure_every: int = 1,
+    oracle_noise_px: float | None = None,
+    oracle_seed: int = 0,
 ) -> SequenceScores:
     """Run a fresh ``TrackingPipeline`` over a loaded sequence and score every frame.
 
@@ -298,6 +319,11 @@ def score_sequence(
         between measured ones (``PipelineOutput.mode`` "predicted") score their tracks like any
         other frame, but hold no detection to score: they are left out of AP^kp, and the front/back
         and axis verdicts are NaN there.
+    oracle_noise_px : None (the pipeline, as shipped), or the network replaced by the ground-truth
+        keypoints with this much Gaussian noise (px) and no search
+        (``dronekey.evaluation.oracle``): the pose stage's floor; a drone-free sequence then holds
+        nothing to track.
+    oracle_seed : the oracle noise's seed.
 
     Returns
     -------
@@ -306,15 +332,17 @@ def score_sequence(
     no_drone = bool(seq.info.get("no_drone", False))
     spec = sequence_spec(seq)
     drone_radius_m = spec.extent_m / 2.0  # the circle that holds every propeller disc
-    pipeline = TrackingPipeline(
+    run = frame_runner(
         seq.camera,
+        spec,
         model_path,
-        drone=spec,
+        oracle_noise_px=oracle_noise_px,
+        oracle_seed=oracle_seed,
+        tracker=tracker,
         mirror_average=mirror_average,
         heading_model=front_back,
         verifier=verifier,
         localizer=localizer,
-        tracker=tracker,
         measure_every=measure_every,
     )
     rows: dict[str, list] = {
@@ -346,13 +374,13 @@ def score_sequence(
     for sf in iter_frames(seq):
         frame = sf.frame if dither is None else dither(sf.frame)
         t0 = time.perf_counter()
-        out = pipeline.process(frame)
+        ann = sf.record.drone
+        out = run(frame, None if no_drone else ann)
         proc_s += time.perf_counter() - t0
         n += 1
         if on_frame is not None:
             on_frame()
         published = [tr for tr in out.tracks if tr.status in PUBLISHED_STATUSES]
-        ann = sf.record.drone
         if no_drone:
             rows["false"].append(bool(published))
             rows["off_sight"].append(bool(published))

@@ -35,6 +35,9 @@ Per sequence and per group (a frame-weighted average over the scored frames, ``s
   decided kind of order (``scoring.axis_exchanged``), the percent whose order exchanges the body's
   front/back and left/right axes (a quarter turn): such a detection reads the drone at a wrong
   range, whatever the front/back classifier says;
+- keypoint error: the median distance (px) of the drone's detections' keypoints from their hubs,
+  the order taken up to the front/back twin (``scoring.keypoint_error_px``): the pixel precision
+  to set beside ``--oracle-noise`` (noise of sigma px per coordinate is 1.18 sigma px here);
 - range doubt: of the frames with a published track on the drone (``scoring.range_z``), the
   percent whose true range lies within one and within two of the standard deviations the track's
   ``position_cov`` states along its line of sight (an honest Gaussian doubt: 68 and 95).
@@ -48,7 +51,7 @@ import numpy as np
 
 from dronekey.evaluation.metrics import ap_kp
 from dronekey.evaluation.pose import pose_errors, rounded
-from dronekey.evaluation.robustness.scoring import SequenceScores
+from dronekey.evaluation.robustness.scoring import SequenceScores, keypoint_error_px
 
 __all__ = ["summarise"]
 
@@ -71,7 +74,7 @@ def summarise(scores: Sequence[SequenceScores]) -> dict:
     ``wrong_heading_pct`` (any confidence), ``confident_right_heading_frames``,
     ``confident_right_heading_pct``, ``missed_wrong_range_pct``, ``missed_unconfirmed_pct``,
     ``missed_unseen_pct``, ``front_back_frames``, ``front_back_right_pct``, ``axis_frames``,
-    ``axis_exchanged_pct``, ``range_doubt_frames``, ``range_within_1sd_pct``,
+    ``axis_exchanged_pct``, ``kp_err_px_median``, ``range_doubt_frames``, ``range_within_1sd_pct``,
     ``range_within_2sd_pct``, ``front_away_pct``,
     ``confident_wrong_heading_front_away_pct`` and ``confident_wrong_heading_front_toward_pct``;
     figures that need a drone sequence are None without one, and a figure with no frame to average
@@ -115,6 +118,7 @@ def summarise(scores: Sequence[SequenceScores]) -> dict:
         "front_back_right_pct": None,
         "axis_frames": None,
         "axis_exchanged_pct": None,
+        "kp_err_px_median": None,
         "range_doubt_frames": None,
         "range_within_1sd_pct": None,
         "range_within_2sd_pct": None,
@@ -131,7 +135,8 @@ def summarise(scores: Sequence[SequenceScores]) -> dict:
     hit = cat("detected")
     R_true = cat("R_true")
     errors = pose_errors(cat("R_track")[hit], cat("t_track")[hit], R_true[hit], cat("t_true")[hit])
-    ap = ap_kp(cat("kp_pred"), cat("kp_true"), cat("area"), cat("score"), has_pred=cat("has_pred"))
+    has_pred = cat("has_pred")
+    ap = ap_kp(cat("kp_pred"), cat("kp_true"), cat("area"), cat("score"), has_pred=has_pred)
     wrong = int(cat("wrong_heading").sum())
     confident_wrong_frames = cat("confident_wrong_heading")
     confident_wrong = int(confident_wrong_frames.sum())
@@ -141,6 +146,8 @@ def summarise(scores: Sequence[SequenceScores]) -> dict:
     asked = np.isfinite(front_back)
     exchanged = cat("axis_exchanged")
     decided = np.isfinite(exchanged)
+    kp_err = keypoint_error_px(cat("kp_pred")[has_pred], cat("kp_true")[has_pred])
+    kp_err = kp_err[np.isfinite(kp_err)]
     z = np.abs(cat("range_z"))
     z = z[np.isfinite(z)]
     out.update(
@@ -164,6 +171,7 @@ def summarise(scores: Sequence[SequenceScores]) -> dict:
         front_back_right_pct=rounded(_pct(int(front_back[asked].sum()), int(asked.sum())), 2),
         axis_frames=int(decided.sum()),
         axis_exchanged_pct=rounded(_pct(int(exchanged[decided].sum()), int(decided.sum())), 2),
+        kp_err_px_median=rounded(float(np.median(kp_err)), 2) if kp_err.size else None,
         range_doubt_frames=int(len(z)),
         range_within_1sd_pct=rounded(_pct(int((z <= 1.0).sum()), len(z)), 2),
         range_within_2sd_pct=rounded(_pct(int((z <= 2.0).sum()), len(z)), 2),
