@@ -561,7 +561,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="PX",
         help="no network: every drone's true keypoints plus Gaussian noise of PX per coordinate through "
         "the pipeline's PnP and tracker (the filter told PX): the RMSE and MAE-angle the pose stage alone "
-        "reaches at that precision, a floor for any detector (detection and false tracks are not measured)",
+        "reaches at that precision, a yardstick for a detector (detection and false tracks are not measured)",
     )
     r.add_argument(
         "--cue-free",

@@ -4,9 +4,11 @@ The network's place taken by the annotated keypoints with Gaussian noise of ``no
 coordinate, drawn independently for every frame and keypoint; everything after the network is the
 daemon's own (``dronekey.pipeline.PoseTracker``: PnP with the prior's IPPE pick, the reprojection
 and range checks, the Kalman tracks and their confirmation). What an evaluation prints on it is
-the floor that the pose stage sets for a keypoint detector of that precision: with independent
-noise the filter averages more away than it can from a network's errors, which persist from frame
-to frame, so a network of the same pixel error does worse, never better.
+what the pose stage makes of keypoints right on average and off by independent noise of that size:
+a yardstick for how precise a detector must be, not a bound. A network's errors persist from frame
+to frame (the filter averages less of them away) and have long tails, which costs range; but they
+keep the shape of a drone, so the PnP branch of a far drone is seldom wrong, where independent
+noise flips it (docs/evaluation.md, forty-fourth session).
 """
 
 from __future__ import annotations

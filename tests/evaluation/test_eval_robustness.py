@@ -350,7 +350,7 @@ def test_oracle_keypoints_measure_the_pose_stage_alone(tiny):
     assert drone["detected_pct"] == pytest.approx(100 * 8 / 12, abs=0.01)  # confirmed from the 3rd hit on
     assert rows[("drone-free", "drone-free")]["false_track_frames"] == 0  # nothing to track
     assert "ORACLE: no network, the true keypoints with 0 px of noise" in exact.table().splitlines()[0]
-    # Half a pixel on drones a few pixels across (320 x 180): the pose stage's floor rises.
+    # Half a pixel on drones a few pixels across (320 x 180): the pose stage's error rises.
     noisy = run_robustness(out, **TINY, oracle_noise_px=0.5)
     drone = {(by, v): s for by, v, s in noisy.group_summaries()}[("all", "drone sequences")]
     assert 0.45 < drone["kp_err_px_median"] < 0.75  # 1.18 sigma: the median of a 2-D Gaussian's radius

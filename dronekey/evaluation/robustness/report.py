@@ -145,7 +145,7 @@ class RobustnessReport:
             + (", every drone cue-free (no front/back cue)" if st.get("cue_free") else "")
             + (
                 f", ORACLE: no network, the true keypoints with {st['oracle_noise_px']:g} px of noise"
-                " (the pose stage's floor; detection and false tracks not measured)"
+                " (the pose stage alone; detection and false tracks not measured)"
                 if st.get("oracle_noise_px") is not None
                 else ""
             )

@@ -320,9 +320,9 @@ def score_sequence(
         other frame, but hold no detection to score: they are left out of AP^kp, and the front/back
         and axis verdicts are NaN there.
     oracle_noise_px : None (the pipeline, as shipped), or the network replaced by the ground-truth
-        keypoints with this much Gaussian noise (px) and no search
-        (``dronekey.evaluation.oracle``): the pose stage's floor; a drone-free sequence then holds
-        nothing to track.
+        keypoints with this much independent Gaussian noise (px) and no search
+        (``dronekey.evaluation.oracle``): what the pose stage makes of keypoints that precise; a
+        drone-free sequence then holds nothing to track.
     oracle_seed : the oracle noise's seed.
 
     Returns
