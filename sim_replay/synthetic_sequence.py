@@ -40,6 +40,7 @@ from dronekey.sim_replay.flight import FLIGHT_MODELS, CoordinatedFlight
 from dronekey.sim_replay.flyers import random_flyers
 from dronekey.sim_replay.mesh import build_mesh
 from dronekey.sim_replay.presets import PRESETS, Preset, preset_camera
+from dronekey.sim_replay.provenance import renderer_fingerprint
 from dronekey.sim_replay.renderer import Lighting, render_drone
 
 __all__ = [
@@ -121,12 +122,13 @@ def sequence_info(
     name: str, seed: int, preset: Preset, conditions: SequenceConditions, look: DroneLook | None
 ) -> dict:
     """The fields every sequence JSON's ``info`` (docs/design.md §5.1) starts with: the sequence, the
-    preset and the conditions it was rendered under; ``look`` is the (first) drone's, None without
-    a drone."""
+    renderer (``provenance.renderer_fingerprint``), the preset and the conditions it was rendered
+    under; ``look`` is the (first) drone's, None without a drone."""
     c = conditions
     return {
         "sequence": name,
         "generator": GENERATOR,
+        "renderer": renderer_fingerprint(),
         "seed": seed,
         "fps": preset.fps,
         "description": preset.description,

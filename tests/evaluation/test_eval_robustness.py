@@ -27,6 +27,7 @@ from dronekey.evaluation.robustness.seed_sets import check_seeds
 from dronekey.evaluation.robustness.summary import summarise
 from dronekey.geometry.rotations import rotation_from_euler_deg
 from dronekey.perception.keypoint_order import HEADING_TWIN
+from dronekey.sim_replay.provenance import renderer_fingerprint
 from dronekey.types import KeypointDetection, TrackStatus
 
 # A tiny matrix: two LED modes on the held-out photos, one motion (the first sequence is far), two
@@ -426,6 +427,19 @@ def test_rerun_reuses_the_renders(tiny):
     assert longer.settings["reused_sequences"] == 0
     assert longer.sequences[0].rendered.json_path != paths[0]
     assert os.stat(paths[0]).st_mtime_ns == stamps[0]
+
+
+def test_a_render_from_another_renderer_is_rendered_again(tmp_path):
+    one = {**TINY, "leds": ("off",), "drone_free": 0}
+    first = run_robustness(tmp_path, **one).sequences[0].rendered.json_path
+    doc = json.loads(first.read_text())
+    assert doc["info"]["renderer"] == renderer_fingerprint()
+    doc["info"]["renderer"] = "source 000000000000; av 0.0"  # as an older simulator or encoder wrote it
+    first.write_text(json.dumps(doc))
+    again = run_robustness(tmp_path, **one)
+    assert again.settings["reused_sequences"] == 0
+    assert json.loads(first.read_text())["info"]["renderer"] == renderer_fingerprint()
+    assert run_robustness(tmp_path, **one).settings["reused_sequences"] == 1
 
 
 def test_select_scores_only_the_matching_sequences_with_their_matrix_seeds(tiny):
