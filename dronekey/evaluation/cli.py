@@ -326,9 +326,30 @@ def _pipeline_configs(
     return localizer, tracker
 
 
+# Flags of the network and the search, which --oracle-noise replaces: (attribute, flag, its default).
+_NETWORK_FLAGS = (
+    ("model", "--model", None),
+    ("no_mirror_average", "--no-mirror-average", False),
+    ("localizer", "--localizer", None),
+    ("front_back", "--front-back", None),
+    ("verifier", "--verifier", None),
+    ("no_verifier", "--no-verifier", False),
+    ("acquire_recut", "--acquire-recut", None),
+    ("measure_every", "--measure-every", 1),
+    ("dither", "--dither", None),
+)
+
+
 def _check_oracle_noise(args: argparse.Namespace) -> None:
-    if args.oracle_noise is not None and not 0 <= args.oracle_noise < math.inf:
+    """--oracle-noise is a finite number >= 0 px, and no flag of the network it replaces is given
+    beside it (it would be silently without effect)."""
+    if args.oracle_noise is None:
+        return
+    if not 0 <= args.oracle_noise < math.inf:
         raise _UsageError(f"--oracle-noise must be a finite number >= 0 px, got {args.oracle_noise}")
+    given = [flag for attr, flag, default in _NETWORK_FLAGS if getattr(args, attr, default) != default]
+    if given:
+        raise _UsageError(f"--oracle-noise runs no network, so {', '.join(given)} would do nothing: drop it")
 
 
 def _add_dither_flag(parser: argparse.ArgumentParser) -> None:

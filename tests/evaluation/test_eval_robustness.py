@@ -482,6 +482,9 @@ def test_cli_json_then_table(tmp_path, capsys):
         (["--tracker", "confirm_hits=0"], "--tracker: TrackerConfig.confirm_hits must be an integer >= 1"),
         (["--localizer", "use_motion=maybe"], "--localizer use_motion must be true or false, got 'maybe'"),
         (["--localizer", "max_candidates=2.5"], "--localizer max_candidates must be an integer, got '2.5'"),
+        (["--oracle-noise", "1", "--model", "m.onnx"], "--oracle-noise runs no network, so --model would do"),
+        (["--oracle-noise", "0", "--measure-every", "2"], "so --measure-every would do nothing"),
+        (["--oracle-noise", "nan"], "--oracle-noise must be a finite number >= 0 px, got nan"),
     ],
 )
 def test_bad_arguments_are_one_line(extra, message, tmp_path, capsys):
