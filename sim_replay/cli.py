@@ -486,9 +486,13 @@ def main(argv: Sequence[str] | None = None) -> int:
             f"give exactly one of {', '.join(modes)}" + (f", got {' and '.join(chosen)}" if chosen else "")
         )
     in_main_thread = threading.current_thread() is threading.main_thread()
-    previous_term = signal.getsignal(signal.SIGTERM)
+    previous_int, previous_term = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
     try:
-        if in_main_thread:  # SIGTERM cleans up like Ctrl-C (the writer removes its temporaries)
+        if in_main_thread:
+            # SIGTERM cleans up like Ctrl-C (the writer removes its temporaries). SIGINT is set too:
+            # a process started from a background job (`cmd &` in a script) inherits it ignored, and
+            # Python then keeps it so, but a SIGINT sent to a render must still stop it cleanly.
+            signal.signal(signal.SIGINT, signal.default_int_handler)
             signal.signal(signal.SIGTERM, _raise_terminated)
         if args.list_presets:
             return _list_presets()
@@ -511,6 +515,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_INTERRUPTED
     finally:
         if in_main_thread:
+            signal.signal(signal.SIGINT, previous_int)
             signal.signal(signal.SIGTERM, previous_term)
 
 

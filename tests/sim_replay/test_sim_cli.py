@@ -262,11 +262,25 @@ def test_console_script_reports_without_traceback(tmp_path):
     assert "Traceback" not in result.stderr and len(result.stderr.strip().splitlines()) == 1
 
 
-@pytest.mark.parametrize(("sig", "code"), [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
-def test_interrupt_leaves_no_files(tmp_path, sig, code):
+# Started as a background job (`dronekey-sim ... &` in a script) a process inherits SIGINT ignored;
+# a SIGINT sent to it must still stop the render cleanly.
+_SIGINT_IGNORED = [
+    sys.executable,
+    "-c",
+    "import os, signal, sys; signal.signal(signal.SIGINT, signal.SIG_IGN); "
+    "os.execv(sys.argv[1], sys.argv[1:])",
+]
+
+
+@pytest.mark.parametrize(
+    ("sig", "code", "launcher"),
+    [(signal.SIGINT, 130, []), (signal.SIGTERM, 143, []), (signal.SIGINT, 130, _SIGINT_IGNORED)],
+    ids=["SIGINT", "SIGTERM", "SIGINT-after-background-start"],
+)
+def test_interrupt_leaves_no_files(tmp_path, sig, code, launcher):
     out = tmp_path / "out"
     proc = subprocess.Popen(
-        [_console_script(), "--preset", "2dronekey", "--out", str(out), *SMALL],
+        [*launcher, _console_script(), "--preset", "2dronekey", "--out", str(out), *SMALL],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
