@@ -387,8 +387,9 @@ def _add_override_flags(parser: argparse.ArgumentParser) -> None:
 
 
 _ROBUSTNESS_HELP = """\
-Render a fixed matrix of sequences into --out (reused on a rerun when their JSON info, frame count
-and size match), run the daemon's pipeline over each and print one table.
+Render a fixed matrix of sequences into --out (reused on a rerun when their JSON info, the
+renderer's name included, frame count and size match), run the daemon's pipeline over each and
+print one table.
 
 matrix (dronekey.evaluation.robustness):
   drone sequences   LEDs red-front, green-front, off, random
