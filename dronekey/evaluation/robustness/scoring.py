@@ -181,11 +181,16 @@ def keypoint_error_px(kp_pred: np.ndarray, kp_true: np.ndarray) -> np.ndarray:
     in_order = np.linalg.norm(kp - truth, axis=2)
     twin = np.linalg.norm(kp[:, list(HEADING_TWIN)] - truth, axis=2)
     err = np.where(in_order.mean(axis=1, keepdims=True) <= twin.mean(axis=1, keepdims=True), in_order, twin)
-    extent = np.ptp(truth, axis=1).max(axis=1)
-    off = np.linalg.norm(kp.mean(axis=1) - truth.mean(axis=1), axis=1)
-    mine = np.isfinite(off) & (off <= 0.5 * extent)
-    err[~mine] = np.nan
+    err[~_of_this_drone(kp, truth)] = np.nan
     return err
+
+
+def _of_this_drone(kp_pred: np.ndarray, kp_true: np.ndarray) -> np.ndarray:
+    """Whether each detection's keypoints (..., 4, 2) are this drone's: all finite, and their centroid
+    within half the true keypoints' extent (px) of the true centroid; bool of shape (...)."""
+    extent = np.ptp(kp_true, axis=-2).max(axis=-1)
+    off = np.linalg.norm(kp_pred.mean(axis=-2) - kp_true.mean(axis=-2), axis=-1)
+    return np.isfinite(kp_pred).all(axis=(-2, -1)) & (off <= 0.5 * extent)
 
 
 def _nearer(kp_pred: np.ndarray, kp_true: np.ndarray, first, second) -> bool | None:
@@ -195,8 +200,7 @@ def _nearer(kp_pred: np.ndarray, kp_true: np.ndarray, first, second) -> bool | N
     clearly nearer either (the nearer's error at least ``ORDER_DECIDED`` of the other's)."""
     kp = np.asarray(kp_pred, dtype=np.float64)
     truth = np.asarray(kp_true, dtype=np.float64)
-    extent = float(np.ptp(truth, axis=0).max())
-    if not np.all(np.isfinite(kp)) or np.linalg.norm(kp.mean(axis=0) - truth.mean(axis=0)) > 0.5 * extent:
+    if not _of_this_drone(kp, truth):
         return None
     err_first, err_second = (
         min(float(np.linalg.norm(kp[list(o)] - truth, axis=1).mean()) for o in orders)

@@ -135,8 +135,8 @@ def summarise(scores: Sequence[SequenceScores]) -> dict:
     hit = cat("detected")
     R_true = cat("R_true")
     errors = pose_errors(cat("R_track")[hit], cat("t_track")[hit], R_true[hit], cat("t_true")[hit])
-    has_pred = cat("has_pred")
-    ap = ap_kp(cat("kp_pred"), cat("kp_true"), cat("area"), cat("score"), has_pred=has_pred)
+    kp_pred, kp_true, has_pred = cat("kp_pred"), cat("kp_true"), cat("has_pred")
+    ap = ap_kp(kp_pred, kp_true, cat("area"), cat("score"), has_pred=has_pred)
     wrong = int(cat("wrong_heading").sum())
     confident_wrong_frames = cat("confident_wrong_heading")
     confident_wrong = int(confident_wrong_frames.sum())
@@ -146,7 +146,7 @@ def summarise(scores: Sequence[SequenceScores]) -> dict:
     asked = np.isfinite(front_back)
     exchanged = cat("axis_exchanged")
     decided = np.isfinite(exchanged)
-    kp_err = keypoint_error_px(cat("kp_pred")[has_pred], cat("kp_true")[has_pred])
+    kp_err = keypoint_error_px(kp_pred[has_pred], kp_true[has_pred])
     kp_err = kp_err[np.isfinite(kp_err)]
     z = np.abs(cat("range_z"))
     z = z[np.isfinite(z)]
