@@ -35,6 +35,7 @@ PIPELINE_TABLE_KEYS = (
     "efficiency",
     "cpu_limit_fps",
     "efficiency_vs_cpu_limit",
+    "network_limit_fps",
     "cpu_percent",
     "rss_mb",
 )

@@ -60,7 +60,8 @@ class Meter:
     """The daemon's pipeline behind a pipeline factory that counts frames and stamps a window.
 
     ``pipeline_cpu_s`` sums the CPU time of ``TrackingPipeline.process`` alone (its thread's, so the
-    decoder and the outputs are not in it) over the frames after the warm-up.
+    decoder and the outputs are not in it) over the frames after the warm-up; ``network_cpu_s`` the
+    part of it spent in the networks' ONNX Runtime calls (``KeypointModel.network_cpu_s``).
 
     ``process`` forwards to ``TrackingPipeline.process`` and stamps (``Stamp``) the end of frame
     ``warmup`` (``start``) and of the last frame (``end``); with ``rss`` the stamps hold the resident
@@ -107,6 +108,7 @@ class Meter:
         self.app = None  # the DaemonApp this meter runs in (run_daemon sets it)
         self.latency_start: dict[str, LatencyHistogram] = {}  # each output's, at the start stamp
         self.pipeline_cpu_s = 0.0  # CPU time in process() (its thread and helpers), after warm-up
+        self.network_cpu_s = 0.0  # the part of it in ONNX Runtime's calls (KeypointModel.network_cpu_s)
         self._rss = rss
         self._record_frames = record_frames
         self.frame_timings: list[FrameTiming] = []  # with record_frames: each frame of the window
@@ -123,12 +125,14 @@ class Meter:
 
     def process(self, frame, late=False):
         started, helpers = time.thread_time(), getattr(self.pipeline, "helper_cpu_s", 0.0)
+        networks = self._network_cpu_s()
         taken_ns = time.monotonic_ns()
         output = self.pipeline.process(frame, late=late)
         if self.start is not None and self.end is None:
             # the pipeline thread's CPU and its helper threads' (the early saliency pass)
             helpers = getattr(self.pipeline, "helper_cpu_s", 0.0) - helpers
             self.pipeline_cpu_s += time.thread_time() - started + helpers
+            self.network_cpu_s += self._network_cpu_s() - networks
             if self._record_frames:
                 self._record(taken_ns, output)
         self.frames += 1
@@ -154,6 +158,10 @@ class Meter:
             self._keep_rss(self.last)
         self._bar.update(1)
         return output
+
+    def _network_cpu_s(self) -> float:
+        model = getattr(self.pipeline, "model", None)
+        return getattr(model, "network_cpu_s", 0.0)
 
     def _record(self, taken_ns: int, output) -> None:
         """Keep the frame's wait (from its arrival, as the daemon app saw it) and pipeline time."""

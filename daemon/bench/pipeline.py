@@ -16,7 +16,12 @@ Four passes over the same file, one report:
 
 ``efficiency = fps / min(decode_fps, model_fps)``; ``cpu_limit_fps`` is the CPU-bound limit
 (``cpu_limit.py``) from the decode pass's CPU per frame and the flat-out pass's pipeline CPU per
-frame, and ``efficiency_vs_cpu_limit = fps / cpu_limit_fps``; ``rss_mb`` is the peak resident set
+frame, and ``efficiency_vs_cpu_limit = fps / cpu_limit_fps``. ``network_limit_fps`` is the same limit
+with the pipeline's CPU replaced by its networks' alone (``details.network_cpu_ms_per_frame``: ONNX
+Runtime's calls, keypoint network and patch classifiers, on the pipeline thread): what the cores could
+do were everything of the pipeline but its networks free, so no end-to-end figure can pass it with
+these networks and this decoder (at ``model.threads`` 1; with more, ONNX Runtime's pool threads are
+not counted and it reads high). ``rss_mb`` is the peak resident set
 of the process over all passes (MiB, as every ``*_mb`` figure here). The first ``warmup`` frames
 of each daemon pass (ONNX Runtime's first runs, the Zenoh session opening) are left out of its
 figures. The source loops, so ``frames`` may exceed the clip's length.
@@ -132,8 +137,10 @@ def run_pipeline_bench(
     n, wall_s, cpu_s = flat.window()
     fps = n / wall_s
     pipeline_cpu_ms = 1e3 * flat.pipeline_cpu_s / n
+    network_cpu_ms = 1e3 * flat.network_cpu_s / n
     cores = usable_cores()
     limit = cpu_limit_fps(decode_cpu_ms, pipeline_cpu_ms, cores)
+    network_limit = cpu_limit_fps(decode_cpu_ms, network_cpu_ms, cores)
 
     LOG.info("paced pass: %d frames at the clip's frame rate", latency_frames)
     paced = Meter(latency_frames, warmup, "paced", record_frames=True)
@@ -158,6 +165,7 @@ def run_pipeline_bench(
         "efficiency": round(fps / min(decode_fps, model_fps), 3),
         "cpu_limit_fps": round(limit, 1),
         "efficiency_vs_cpu_limit": round(fps / limit, 3),
+        "network_limit_fps": round(network_limit, 1),
         "cpu_percent": round(100.0 * cpu_s / wall_s, 1),
         "rss_mb": round(peak_rss_mb(), 1),
         "details": {
@@ -178,6 +186,7 @@ def run_pipeline_bench(
             "cpu_ms_per_frame": round(1e3 * cpu_s / n, 2),
             "decode_cpu_ms_per_frame": round(decode_cpu_ms, 2),
             "pipeline_cpu_ms_per_frame": round(pipeline_cpu_ms, 2),
+            "network_cpu_ms_per_frame": round(network_cpu_ms, 2),
             "cores": cores,
             "dropped_by_outputs": {name: w.stats.dropped for name, w in flat_app.outputs.items()},
             "paced": {

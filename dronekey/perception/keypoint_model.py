@@ -26,6 +26,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import time
 from collections.abc import Sequence
 from importlib import resources
 from pathlib import Path
@@ -262,6 +263,9 @@ class KeypointModel:
         The model's metadata, JSON values decoded.
     providers : list of str
         Execution providers in use.
+    inference_cpu_s : float
+        CPU seconds the calling threads have spent in this network's ``session.run`` (``network_cpu_s``
+        adds the patch classifiers').
     """
 
     def __init__(
@@ -275,6 +279,7 @@ class KeypointModel:
         verifier: DroneVerifier | None = None,
     ) -> None:
         self.mirror_average = bool(mirror_average)
+        self.inference_cpu_s = 0.0  # the calling threads' CPU seconds in this network's session.run
         self.heading_model = heading_model
         self.verifier = verifier
         sizes = {c.patch_size for c in (heading_model, verifier) if c is not None}
@@ -381,8 +386,19 @@ class KeypointModel:
         s = self.input_size
         if tensor.dtype != np.float32 or tensor.ndim != 4 or tensor.shape[1:] != (3, s, s):
             raise ValueError(f"tensor must be float32 (B, 3, {s}, {s}), got {tensor.dtype} {tensor.shape}")
+        started = time.thread_time()
         outputs = self.session.run(self._outputs, {INPUT_NAME: tensor})
+        self.inference_cpu_s += time.thread_time() - started
         return RawOutputs(*outputs) if self.has_heading else RawOutputs(*outputs, None)
+
+    @property
+    def network_cpu_s(self) -> float:
+        """CPU seconds the calling threads have spent in ONNX Runtime, this network's and its
+        patch classifiers', since the model was loaded. ONNX Runtime computes on the calling thread
+        at one intra-op thread (the default for one camera); with more, its pool threads' share is
+        not in it. ``dronekey-bench pipeline`` reads it as the networks' floor of a frame's cost."""
+        classifiers = (c for c in (self.heading_model, self.verifier) if c is not None)
+        return self.inference_cpu_s + sum(c.inference_cpu_s for c in classifiers)
 
     def postprocess(
         self, raw: RawOutputs, rois: Sequence[ROI], drone_p: np.ndarray | None = None

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import math
+import time
 from pathlib import Path
 
 import cv2
@@ -114,11 +115,17 @@ class PatchClassifier:
         The command that writes one, for the error when the file is missing.
     threads : int
         Intra-op threads (the classifiers are small: one is enough).
+
+    Attributes
+    ----------
+    inference_cpu_s : float
+        CPU seconds the calling threads have spent in ``session.run`` (``KeypointModel.network_cpu_s``).
     """
 
     def __init__(self, path: Path, output_name: str, kind: str, trainer: str, threads: int = 1) -> None:
         self.path = Path(path)
         self.output_name = output_name
+        self.inference_cpu_s = 0.0  # the calling threads' CPU seconds in session.run
         if not self.path.is_file():
             raise FileNotFoundError(f"{kind} not found: {self.path} (train one with `{trainer}`)")
         if threads < 1:
@@ -148,7 +155,9 @@ class PatchClassifier:
 
     def inference(self, tensor: np.ndarray) -> np.ndarray:
         """Logits (B,) of the patches in ``tensor`` (``preprocess``'s first output)."""
+        started = time.thread_time()
         out = self.session.run([self.output_name], {INPUT_NAME: tensor})[0]
+        self.inference_cpu_s += time.thread_time() - started
         return np.asarray(out, dtype=np.float32).reshape(-1)
 
     def postprocess(self, logits: np.ndarray, axis_ratios: np.ndarray) -> np.ndarray:

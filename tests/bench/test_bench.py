@@ -27,6 +27,7 @@ PIPELINE_KEYS = {
     "efficiency",
     "cpu_limit_fps",
     "efficiency_vs_cpu_limit",
+    "network_limit_fps",
     "cpu_percent",
     "rss_mb",
 }
@@ -72,6 +73,12 @@ def test_pipeline_reports_every_figure(assets):
     assert report["cpu_limit_fps"] == pytest.approx(details["cores"] * 1000 / per_frame_ms, rel=0.02)
     efficiency = report["fps"] / report["cpu_limit_fps"]
     assert report["efficiency_vs_cpu_limit"] == pytest.approx(efficiency, rel=0.01)
+    # the networks' CPU is part of the pipeline's, so their limit is the higher
+    network_ms = details["network_cpu_ms_per_frame"]
+    assert 0 < network_ms <= details["pipeline_cpu_ms_per_frame"]
+    per_frame_ms = details["decode_cpu_ms_per_frame"] + network_ms
+    assert report["network_limit_fps"] == pytest.approx(details["cores"] * 1000 / per_frame_ms, rel=0.02)
+    assert report["network_limit_fps"] >= report["cpu_limit_fps"]
     assert details["resolution"] == [320, 240]
     assert set(details["paced"]["outputs"]) == {"zenoh", "mavlink", "mcap"}
     for output in details["paced"]["outputs"].values():

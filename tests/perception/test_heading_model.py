@@ -124,3 +124,17 @@ def test_a_reading_is_classified_only_where_asked_and_as_detect_would():
     assert model.finish(reading, []) == []
     assert seen == [sum(d.presence >= 0.3 for d in (whole[2], whole[0]))]  # those two crops at most
     assert model.detect(frame, []) == [] and model.finish(model.read(frame, [])) == []
+
+
+def test_network_cpu_counts_the_network_and_its_classifiers():
+    """``network_cpu_s`` (what ``dronekey-bench pipeline`` reads as the networks' share of a frame)
+    grows with every ONNX Runtime call, the keypoint network's and the front/back classifier's."""
+    drone = CropSampler(SamplerConfig(negative_fraction=0.0), seed=3).sample()
+    heading = HeadingModel()
+    model = KeypointModel(threads=1, heading_model=heading, spread_calibration=SpreadCalibration())
+    assert model.network_cpu_s == 0.0
+    for _ in range(3):
+        (detection,) = model.detect(drone.image, [(0, 0, 128)])
+    assert detection.presence >= 0.3  # so the classifier ran too
+    assert model.inference_cpu_s > 0 and heading.inference_cpu_s > 0
+    assert model.network_cpu_s == pytest.approx(model.inference_cpu_s + heading.inference_cpu_s)
