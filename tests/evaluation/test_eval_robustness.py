@@ -77,6 +77,8 @@ METRICS = {
     "front_away_pct",
     "confident_wrong_heading_front_away_pct",
     "confident_wrong_heading_front_toward_pct",
+    "front_shown_pct",
+    "mae_angle_front_shown_deg",
 }
 
 ENTRY_KEYS = {"name", "seed", "style_seed", "leds", "background", "range_scale", "far", "no_drone", "reused"}
@@ -261,6 +263,41 @@ def test_summarise_splits_confident_wrong_headings_by_where_the_front_points():
     assert out["confident_wrong_heading_pct"] == 75.0
 
 
+def test_summarise_gives_the_angle_over_the_frames_that_show_the_front():
+    # three detected frames: right, read the wrong way round (180 deg of yaw), right; the second's
+    # body shows no front to the camera, so a reader is not answerable for it
+    s = _scores([False] * 3, [True] * 3, [False, True, False], [False] * 3, [[0, 0, 0]] * 3)
+    s.R_track = s.R_true.copy()
+    s.R_track[1] = np.diag([-1.0, -1.0, 1.0])
+    s.front_shown = np.array([True, False, True])
+    out = summarise([s])
+    assert out["mae_angle_deg"] == pytest.approx(60.0)  # the bar's figure counts every frame
+    assert out["mae_angle_front_shown_deg"] == 0.0 and out["front_shown_pct"] == pytest.approx(66.67)
+    s.front_shown = None  # a sequence that does not name its look: nothing to tell
+    out = summarise([s])
+    assert out["mae_angle_front_shown_deg"] is None and out["front_shown_pct"] is None
+
+
+def test_front_shown_follows_the_body_and_the_view():
+    from dronekey.evaluation.robustness.front_cues import camera_above, front_shown
+    from dronekey.sim_replay.drone_look import DroneLook
+
+    up = np.eye(3)  # body z (down) along the camera's +z: the drone seen from above its props
+    down = np.diag([1.0, -1.0, -1.0])  # body z towards the camera: seen from below
+    R, t = np.stack([up, down]), np.tile([0.0, 0.0, 5.0], (2, 1))
+    assert camera_above(R, t).tolist() == [True, False]
+    top_only = next(
+        seed
+        for seed in range(17000, 17200)
+        if DroneLook.draw(seed).shape.shows_front(True) and not DroneLook.draw(seed).shape.shows_front(False)
+    )
+    info = {"style_seed": top_only, "leds": "red-front", "no_drone": False, "cue_free": False}
+    assert front_shown(info, R, t).tolist() == [True, False]  # its cue is on the top shell
+    assert front_shown({**info, "cue_free": True}, R, t).tolist() == [False, False]
+    assert front_shown({**info, "no_drone": True}, R, t) is None
+    assert front_shown({"leds": "off"}, R, t) is None  # no style seed: a file from elsewhere
+
+
 def test_line_of_sight_tells_the_drone_at_a_wrong_range_from_elsewhere():
     # A Mini 2 (hubs 0.106 m + half a 0.119 m propeller) at 5 m subtends 1.9 deg of radius.
     t_true, radius = np.array([0.0, 0.0, 5.0]), 0.166
@@ -412,6 +449,7 @@ def test_report_json_keys_and_drone_free_frames(tiny):
     # The second table (missed frames, front/back per detection) has no drone-free row.
     second = table[table.index("frames without the drone's track") :]
     assert "leds red-front" in second and "unconf" in second and "drone-free" not in second
+    assert "ang fr" in second and 0 <= drone["front_shown_pct"] <= 100  # the rendered looks are named
 
 
 def test_rerun_reuses_the_renders(tiny):

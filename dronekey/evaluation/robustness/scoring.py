@@ -25,7 +25,9 @@ A fresh ``TrackingPipeline`` (unchanged) runs over every frame; per scored frame
   (``front_back_right``): the classifier's word per frame, apart from what the tracker made of it;
 - how honest the published range doubt is (``range_z``): for the published track nearest the
   truth among those on the drone (its own, or one on its line of sight at a wrong range), the
-  range error over the standard deviation its ``position_cov`` states along its line of sight.
+  range error over the standard deviation its ``position_cov`` states along its line of sight;
+- whether the drone's body shows its front to the camera (``front_shown``, ``front_cues``): where it
+  does not, front and back are a coin flip for any heading reader.
 
 Every frame of a drone-free sequence is scored; frames of a drone sequence without an annotation
 (the drone out of view) are not.
@@ -48,6 +50,7 @@ from dronekey.evaluation.pose import (
     sequence_spec,
 )
 from dronekey.evaluation.robustness.dither import FrameDither
+from dronekey.evaluation.robustness.front_cues import front_shown
 from dronekey.geometry.rotations import geodesic_angle_deg, quat_wxyz_to_matrix
 from dronekey.perception.keypoint_order import HEADING_TWIN, SYMMETRIES
 from dronekey.perception.localizer import LocalizerConfig
@@ -244,6 +247,8 @@ class SequenceScores:
         0.5, or the detection is not the drone's or its order is undecided.
     range_z : (N,) ``range_z`` of the published track nearest the truth among those on the drone
         (its own, or on its line of sight at a wrong range); NaN where there is none.
+    front_shown : (N,) the drone's body shows its front to the camera in the frame
+        (``front_cues.front_shown``); None where the sequence does not name its look.
     fps : frames per second of the pipeline alone (all frames of the sequence).
     """
 
@@ -270,6 +275,7 @@ class SequenceScores:
     front_back_right: np.ndarray
     axis_exchanged: np.ndarray
     range_z: np.ndarray
+    front_shown: np.ndarray | None = None
     fps: float = float("nan")
 
     @property
@@ -441,6 +447,7 @@ def score_sequence(
         rows["score"].append(det.presence if det is not None else 0.0)
         rows["front_back"].append(front_back_verdict(det, ann.keypoints_px))
         rows["axis"].append(axis_exchanged(det.keypoints_px, ann.keypoints_px) if det is not None else np.nan)
+    R_true, t_true = _stack(rows["R_true"], (3, 3)), _stack(rows["t_true"], (3,))
     return SequenceScores(
         no_drone=no_drone,
         false_frame=_stack(rows["false"], (), bool),
@@ -450,8 +457,8 @@ def score_sequence(
         detected=_stack(rows["detected"], (), bool),
         R_track=_stack(rows["R_track"], (3, 3)),
         t_track=_stack(rows["t_track"], (3,)),
-        R_true=_stack(rows["R_true"], (3, 3)),
-        t_true=_stack(rows["t_true"], (3,)),
+        R_true=R_true,
+        t_true=t_true,
         wrong_heading=_stack(rows["wrong"], (), bool),
         sure_heading=_stack(rows["sure"], (), bool),
         kp_pred=_stack(rows["kp_pred"], (4, 2)),
@@ -465,5 +472,6 @@ def score_sequence(
         front_back_right=_stack(rows["front_back"], ()),
         axis_exchanged=_stack(rows["axis"], ()),
         range_z=_stack(rows["range_z"], ()),
+        front_shown=None if no_drone else front_shown(seq.info, R_true, t_true),
         fps=n / proc_s if proc_s > 0 else float("nan"),
     )

@@ -40,7 +40,13 @@ Per sequence and per group (a frame-weighted average over the scored frames, ``s
   to set beside ``--oracle-noise`` (noise of sigma px per coordinate is 1.18 sigma px here);
 - range doubt: of the frames with a published track on the drone (``scoring.range_z``), the
   percent whose true range lies within one and within two of the standard deviations the track's
-  ``position_cov`` states along its line of sight (an honest Gaussian doubt: 68 and 95).
+  ``position_cov`` states along its line of sight (an honest Gaussian doubt: 68 and 95);
+- the front shown: ``front_shown_pct``, the annotated frames whose drone's body shows its front to
+  the camera (``front_cues``), and ``mae_angle_front_shown_deg``, MAE-angle over the detected frames
+  among them. Where the body shows no front, front and back are a coin flip for any reader (90 deg
+  on average, however honest its doubt), so this is the angle a reader is answerable for; the
+  table's MAE-angle, which the accuracy bar reads, counts every detected frame. None where a
+  sequence does not name its look.
 """
 
 from __future__ import annotations
@@ -76,9 +82,9 @@ def summarise(scores: Sequence[SequenceScores]) -> dict:
     ``missed_unseen_pct``, ``front_back_frames``, ``front_back_right_pct``, ``axis_frames``,
     ``axis_exchanged_pct``, ``kp_err_px_median``, ``range_doubt_frames``, ``range_within_1sd_pct``,
     ``range_within_2sd_pct``, ``front_away_pct``,
-    ``confident_wrong_heading_front_away_pct`` and ``confident_wrong_heading_front_toward_pct``;
-    figures that need a drone sequence are None without one, and a figure with no frame to average
-    is None.
+    ``confident_wrong_heading_front_away_pct``, ``confident_wrong_heading_front_toward_pct``,
+    ``front_shown_pct`` and ``mae_angle_front_shown_deg``; figures that need a drone sequence are
+    None without one, and a figure with no frame to average is None.
     """
     frames = sum(s.frames for s in scores)
     false_frames = sum(int(s.false_frame.sum()) for s in scores)
@@ -125,6 +131,8 @@ def summarise(scores: Sequence[SequenceScores]) -> dict:
         "front_away_pct": None,
         "confident_wrong_heading_front_away_pct": None,
         "confident_wrong_heading_front_toward_pct": None,
+        "front_shown_pct": None,
+        "mae_angle_front_shown_deg": None,
     }
     if not n_ann:
         return out
@@ -150,6 +158,13 @@ def summarise(scores: Sequence[SequenceScores]) -> dict:
     kp_err = kp_err[np.isfinite(kp_err)]
     z = np.abs(cat("range_z"))
     z = z[np.isfinite(z)]
+    if all(s.front_shown is not None for s in drone):
+        shown = cat("front_shown")
+        angle_shown = pose_errors(*(cat(k)[hit & shown] for k in ("R_track", "t_track", "R_true", "t_true")))
+        out.update(
+            front_shown_pct=rounded(_pct(int(shown.sum()), n_ann), 2),
+            mae_angle_front_shown_deg=rounded(angle_shown.mae_angle_deg),
+        )
     out.update(
         detected_frames=int(hit.sum()),
         detected_pct=rounded(_pct(int(hit.sum()), n_ann), 2),
