@@ -205,7 +205,9 @@ def add_pipeline_command(subparsers) -> None:
         description="Run the daemon's pipeline on a video with every output on (Zenoh on 127.0.0.1, "
         "MAVLink to a local UDP port, MCAP to a temporary folder) and report end-to-end fps (flat "
         "out), latency p50/p99 (paced at the clip's frame rate), decode-only and model-only fps, "
-        "efficiency = fps / min(decode_fps, model_fps), CPU and peak RSS.",
+        "efficiency = fps / min(decode_fps, model_fps), the CPU-bound limit (cores * 1000 / the decode "
+        "and pipeline CPU ms a frame) and fps against it, the networks' limit (the same with the "
+        "networks' CPU in place of the pipeline's: no end-to-end figure passes it), CPU and peak RSS.",
     )
     _common_arguments(parser)
     parser.add_argument(
