@@ -141,8 +141,9 @@ def summarise(scores: Sequence[SequenceScores]) -> dict:
         return np.concatenate([getattr(s, name) for s in drone])
 
     hit = cat("detected")
-    R_true = cat("R_true")
-    errors = pose_errors(cat("R_track")[hit], cat("t_track")[hit], R_true[hit], cat("t_true")[hit])
+    poses = [cat(k) for k in ("R_track", "t_track", "R_true", "t_true")]  # track's, then the truth
+    R_true = poses[2]
+    errors = pose_errors(*(a[hit] for a in poses))
     kp_pred, kp_true, has_pred = cat("kp_pred"), cat("kp_true"), cat("has_pred")
     ap = ap_kp(kp_pred, kp_true, cat("area"), cat("score"), has_pred=has_pred)
     wrong = int(cat("wrong_heading").sum())
@@ -160,7 +161,7 @@ def summarise(scores: Sequence[SequenceScores]) -> dict:
     z = z[np.isfinite(z)]
     if all(s.front_shown is not None for s in drone):
         shown = cat("front_shown")
-        angle_shown = pose_errors(*(cat(k)[hit & shown] for k in ("R_track", "t_track", "R_true", "t_true")))
+        angle_shown = pose_errors(*(a[hit & shown] for a in poses))
         out.update(
             front_shown_pct=rounded(_pct(int(shown.sum()), n_ann), 2),
             mae_angle_front_shown_deg=rounded(angle_shown.mae_angle_deg),
