@@ -2,8 +2,9 @@
 
 Three steps, each resumable: shards of labelled patches per training seed (one process per seed,
 ``dronekey.training.heading_data``), the same for the validation seed, then training and export
-(``dronekey.training.heading_train``). Shards already in ``--out/data`` are kept, so a stopped run
-starts again where it stopped and ``--shards`` can be raised later; training goes on from its
+(``dronekey.training.heading_train``). Shards already in ``--out/data`` are kept and not labelled
+again (a seed's sampler stream is still drawn from its start: ``patch_shards``), and ``--shards``
+can be raised later; training goes on from its
 last checkpoint in ``--out`` (every 1,000 steps) when the recipe and the number of steps are the
 same (other data or ``--epochs``: a new run). Bad arguments are one-line errors (exit status 2);
 Ctrl-C stops with status 130.

@@ -18,6 +18,9 @@ __all__ = ["RESUME_NOTE", "add_patch_arguments", "patch_usage_error", "render_sh
 RESUME_NOTE = (
     " A stopped run resumes: run the same command again (shards in OUT/data are kept, and training "
     "goes on from OUT/state.pt, written every 1,000 steps, when the data and --epochs are the same)."
+    " A seed stopped part-way draws its sampler stream again from the start, so its kept shards cost "
+    "their rendering once more (not their labelling); --shards N, N the shards each seed has, trains "
+    "on what is there instead."
 )
 
 
