@@ -8,6 +8,8 @@
     dronekey-eval fusion DIR [--gate M] [--json]     # dronekey-sim --cameras N: each camera vs fused
     dronekey-eval robustness --out DIR [--json] [--frames N] [--seeds N ...] [--tuning] [--quick]
                                                      # LEDs x backgrounds x motions, far drones, drone-free
+    dronekey-eval compare --base A.json ... --candidate B.json ... [--moved DEG] [--json]
+                                                     # robustness runs side by side, sequences moved
 
 Figures are percentages (keypoints) and degrees / metres (pose), as in the paper.
 """
@@ -34,6 +36,7 @@ from dronekey.evaluation.keypoints import evaluate_keypoints
 from dronekey.evaluation.mot import DEFAULT_GATE_M, evaluate_mot, mot_table, pooled_table, pooled_to_dict
 from dronekey.evaluation.pose import evaluate_sequence, rounded, table_vi, weighted_average
 from dronekey.evaluation.pose_plot import plot_sequence
+from dronekey.evaluation.robustness.compare import compare_reports, load_report
 from dronekey.evaluation.robustness.dither import FrameDither, describe_dither
 from dronekey.evaluation.robustness.matrix import (
     BACKGROUNDS,
@@ -176,6 +179,27 @@ def _cmd_fusion(args: argparse.Namespace) -> int:
         raise _UsageError(f"--gate must be a positive distance in metres, got {args.gate}")
     result = evaluate_fusion(args.folder, args.model, gate_m=args.gate, max_frames=args.frames)
     print(json.dumps(result.to_dict()) if args.json else fusion_table(result))
+    return 0
+
+
+def _cmd_compare(args: argparse.Namespace) -> int:
+    if len(args.base) != len(args.candidate):
+        raise _UsageError(
+            f"give as many --candidate files as --base files (the same seed sets in the same order), "
+            f"got {len(args.base)} and {len(args.candidate)}"
+        )
+    if not (math.isfinite(args.moved) and args.moved >= 0):
+        raise _UsageError(f"--moved must be a finite number of degrees >= 0, got {args.moved}")
+    for path in (*args.base, *args.candidate):
+        if not Path(path).is_file():
+            raise _UsageError(f"report not found: {path}")
+    comparison = compare_reports(
+        [load_report(f) for f in args.base],
+        [load_report(f) for f in args.candidate],
+        moved_deg=args.moved,
+        names=list(args.candidate),
+    )
+    print(json.dumps(comparison.to_dict()) if args.json else comparison.table())
     return 0
 
 
@@ -516,6 +540,36 @@ def build_parser() -> argparse.ArgumentParser:
     )
     f.add_argument("--json", action="store_true", help="print one JSON object")
     f.set_defaults(func=_cmd_fusion)
+    c = sub.add_parser(
+        "compare",
+        help="a candidate's robustness runs against a baseline's: pooled rows, sequences moved",
+        description="Read runs of 'dronekey-eval robustness --json' (a baseline and a candidate on the same "
+        "renders, one file per seed set) and print every row pooled over the sets, baseline -> "
+        "candidate (MAE-angle and RMSE over the detected frames, detected %, AP^kp as the mean of "
+        "the sets, confidently wrong and sure-and-right shares, false-track frames), then the "
+        "sequences whose MAE-angle moved by more than --moved degrees, better and worse. Which way "
+        "round a hard drone is read is decided per sequence, so count those before trusting a "
+        "pooled mean (docs/evaluation.md).",
+    )
+    c.add_argument(
+        "--base", nargs="+", required=True, metavar="JSON", help="the baseline's runs, one per seed set"
+    )
+    c.add_argument(
+        "--candidate",
+        nargs="+",
+        required=True,
+        metavar="JSON",
+        help="the candidate's runs, in the same order",
+    )
+    c.add_argument(
+        "--moved",
+        type=float,
+        default=10.0,
+        metavar="DEG",
+        help="a sequence's MAE-angle change that counts (default 10)",
+    )
+    c.add_argument("--json", action="store_true", help="print one JSON object")
+    c.set_defaults(func=_cmd_compare)
     r = sub.add_parser(
         "robustness",
         help="the pipeline under LED, background, motion and range changes, and on drone-free sequences",

@@ -13,4 +13,5 @@ is found and posed and how often the tracker publishes something that is not the
 ``summary``    the figures pooled over a group of sequences
 ``report``     the table and the JSON
 ``run``        ``run_robustness``: all of the above, as ``dronekey-eval robustness`` runs it
+``compare``    two runs' JSON side by side (``dronekey-eval compare``): pooled rows, sequences moved
 """
