@@ -132,28 +132,26 @@ def _pair(pair: tuple, fmt: str) -> str:
 def _pooled(groups: list[dict]) -> dict[str, float | None]:
     """One row's figures over several sets' rows of it."""
     frames = sum(g["frames"] for g in groups)
-    detected = sum(g.get("detected_frames") or 0 for g in groups)
-    scored = [g for g in groups if g.get("mae_angle_deg") is not None and g.get("detected_frames")]
-
-    def weighted(key: str, power: int = 1) -> float | None:
-        rows = [g for g in scored if g.get(key) is not None]
-        n = sum(g["detected_frames"] for g in rows)
-        if not n:
-            return None
-        mean = sum(g[key] ** power * g["detected_frames"] for g in rows) / n
-        return mean ** (1 / power)
-
     aps = [g["ap_kp"] for g in groups if g.get("ap_kp") is not None]
-    has_detected = any(g.get("detected_pct") is not None for g in groups)
     return {
-        "mae_angle_deg": weighted("mae_angle_deg"),
-        "rmse_m": weighted("rmse_m", power=2),
-        "detected_pct": 100 * detected / frames if frames and has_detected else None,
+        "mae_angle_deg": _weighted(groups, "mae_angle_deg"),
+        "rmse_m": _weighted(groups, "rmse_m", power=2),
+        "detected_pct": _share(groups, "detected_frames", frames),
         "ap_kp": sum(aps) / len(aps) if aps else None,
         "confident_wrong_heading_pct": _share(groups, "confident_wrong_heading_frames", frames),
         "confident_right_heading_pct": _share(groups, "confident_right_heading_frames", frames),
         "false_track_frames": sum(g.get("false_track_frames") or 0 for g in groups),
     }
+
+
+def _weighted(groups: list[dict], key: str, power: int = 1) -> float | None:
+    """The power mean of ``key`` over the rows that have it, weighted by their detected frames (the
+    frames the figure is over); power 2 pools an RMSE."""
+    rows = [g for g in groups if g.get(key) is not None and g.get("detected_frames")]
+    n = sum(g["detected_frames"] for g in rows)
+    if not n:
+        return None
+    return (sum(g[key] ** power * g["detected_frames"] for g in rows) / n) ** (1 / power)
 
 
 def _share(groups: list[dict], key: str, frames: int) -> float | None:
