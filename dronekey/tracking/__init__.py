@@ -7,4 +7,5 @@
 ``heading``             front and back: the heading twin and its log-odds
 ``position_filter``     constant-velocity Kalman filter of the position (filterpy)
 ``orientation_filter``  the orientation on the rotation manifold, with its covariance
+``motion_model``        both filters' transition and process noise, built once per time step
 """

@@ -28,8 +28,9 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-from filterpy.common import Q_discrete_white_noise
 from filterpy.kalman import KalmanFilter
+
+from dronekey.tracking.motion_model import transition, white_noise_acceleration
 
 __all__ = ["OrientationFilter", "rotation_exp", "rotation_log"]
 
@@ -44,19 +45,6 @@ def rotation_exp(rotvec: np.ndarray) -> np.ndarray:
 def rotation_log(R: np.ndarray) -> np.ndarray:
     """Rotation vector (rad, norm in [0, pi]) of a rotation matrix."""
     return cv2.Rodrigues(np.asarray(R, dtype=np.float64))[0].ravel()
-
-
-def _transition(dt: float, tau: float = 0.0) -> np.ndarray:
-    """State transition over ``dt`` seconds; ``tau`` (s) the angular velocity's time constant
-    (0: none, constant angular velocity)."""
-    F = np.eye(6)
-    if tau > 0.0:
-        a = float(np.exp(-dt / tau))
-        F[:3, 3:] = tau * (1.0 - a) * np.eye(3)
-        F[3:, 3:] = a * np.eye(3)
-    else:
-        F[:3, 3:] = dt * np.eye(3)
-    return F
 
 
 class OrientationFilter:
@@ -85,6 +73,7 @@ class OrientationFilter:
         self.angular_accel_std_radps2 = float(angular_accel_std_radps2)
         self.angular_velocity_tau_s = float(angular_velocity_tau_s)
         self._R_ref = np.asarray(R, dtype=np.float64).copy()
+        self._rotation: np.ndarray | None = None  # ``rotation``, until the state next changes
         self._kf = KalmanFilter(dim_x=6, dim_z=3)
         self._kf.x = np.zeros(6)
         P = np.zeros((6, 6))
@@ -96,8 +85,11 @@ class OrientationFilter:
     # ------------------------------------------------------------------ state
     @property
     def rotation(self) -> np.ndarray:
-        """(3, 3) body -> camera rotation."""
-        return self._R_ref @ rotation_exp(self._kf.x[:3])
+        """(3, 3) body -> camera rotation (computed once per state: a track reads it many times a
+        frame)."""
+        if self._rotation is None:
+            self._rotation = self._R_ref @ rotation_exp(self._kf.x[:3])
+        return self._rotation.copy()
 
     @property
     def angular_velocity_body_radps(self) -> np.ndarray:
@@ -119,19 +111,20 @@ class OrientationFilter:
         return self._R_ref.T @ np.asarray(cov_cam, dtype=np.float64) @ self._R_ref
 
     def _process_noise(self, dt: float) -> np.ndarray:
-        return Q_discrete_white_noise(
-            2, dt=dt, var=self.angular_accel_std_radps2**2, block_size=3, order_by_dim=False
-        )
+        return white_noise_acceleration(dt, self.angular_accel_std_radps2**2)
 
     def _recentre(self) -> None:
+        """Fold the error into the reference; every change of the state (predict, update) ends here."""
+        self._rotation = None  # the state has just changed
         self._R_ref = self.rotation
         self._kf.x[:3] = 0.0
+        self._rotation = None
 
     def predicted(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """Body -> camera rotation after ``dt`` seconds and its covariance (camera-frame rotation
         vector, rad^2), without changing the filter."""
         dt = max(dt, 0.0)
-        F = _transition(dt, self.angular_velocity_tau_s)
+        F = transition(dt, self.angular_velocity_tau_s)
         R = self._R_ref @ rotation_exp((F @ self._kf.x)[:3])
         P = F @ self._kf.P @ F.T + (self._process_noise(dt) if dt > 0.0 else 0.0)
         return R, R @ P[:3, :3] @ R.T
@@ -139,7 +132,7 @@ class OrientationFilter:
     def predict(self, dt: float) -> None:
         """Advance the state by ``dt`` seconds (no-op for dt <= 0)."""
         if dt > 0.0:
-            self._kf.predict(F=_transition(dt, self.angular_velocity_tau_s), Q=self._process_noise(dt))
+            self._kf.predict(F=transition(dt, self.angular_velocity_tau_s), Q=self._process_noise(dt))
             self._recentre()
 
     def innovation(self, R_meas: np.ndarray, rotation_cov_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

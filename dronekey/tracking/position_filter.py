@@ -11,18 +11,13 @@ axis.
 from __future__ import annotations
 
 import numpy as np
-from filterpy.common import Q_discrete_white_noise
 from filterpy.kalman import KalmanFilter
+
+from dronekey.tracking.motion_model import transition, white_noise_acceleration
 
 __all__ = ["ConstantVelocityFilter"]
 
 _H = np.hstack([np.eye(3), np.zeros((3, 3))])
-
-
-def _transition(dt: float) -> np.ndarray:
-    F = np.eye(6)
-    F[:3, 3:] = dt * np.eye(3)
-    return F
 
 
 class ConstantVelocityFilter:
@@ -65,19 +60,19 @@ class ConstantVelocityFilter:
 
     # ------------------------------------------------------------------ filter
     def _process_noise(self, dt: float) -> np.ndarray:
-        return Q_discrete_white_noise(2, dt=dt, var=self.accel_std_mps2**2, block_size=3, order_by_dim=False)
+        return white_noise_acceleration(dt, self.accel_std_mps2**2)
 
     def predicted(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """(x, P) after ``dt`` seconds, without changing the filter."""
         if dt <= 0.0:
             return self._kf.x.copy(), self._kf.P.copy()
-        F = _transition(dt)
+        F = transition(dt)
         return F @ self._kf.x, F @ self._kf.P @ F.T + self._process_noise(dt)
 
     def predict(self, dt: float) -> None:
         """Advance the state by ``dt`` seconds (no-op for dt <= 0)."""
         if dt > 0.0:
-            self._kf.predict(F=_transition(dt), Q=self._process_noise(dt))
+            self._kf.predict(F=transition(dt), Q=self._process_noise(dt))
 
     def innovation(self, z: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Innovation y = z - p and its covariance S = P_pp + R for a position measurement z."""
