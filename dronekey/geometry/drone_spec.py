@@ -56,6 +56,24 @@ class DroneSpec:
         k = self.keypoints_3d
         return float(max(np.linalg.norm(k[i] - k[j]) for i in range(4) for j in range(i + 1, 4)))
 
+    @cached_property
+    def extent_points_m(self) -> np.ndarray:
+        """(36, 3) body-frame points (m) that bound the drone's image, read-only: 8 on each
+        propeller disc's rim and the 4 bottom corners of a box under the hubs that holds the body
+        and gimbal (``body``'s length and width, 1.4 times its height down; defaults from the
+        wheelbase). Computed once: the localiser projects them for every tracked crop."""
+        r = self.prop_diameter_m / 2
+        ang = np.linspace(0, 2 * np.pi, 8, endpoint=False)
+        rim = np.c_[r * np.cos(ang), r * np.sin(ang), np.zeros(8)]
+        pts = [hub + rim for hub in self.keypoints_3d]
+        length = float(self.body.get("length", 0.65 * self.diagonal_m))
+        width = float(self.body.get("width", 0.3 * self.diagonal_m))
+        depth = 1.4 * float(self.body.get("height", 0.23 * self.diagonal_m))
+        pts.append(np.array([[sx * length / 2, sy * width / 2, depth] for sx in (-1, 1) for sy in (-1, 1)]))
+        points = np.vstack(pts)
+        points.flags.writeable = False
+        return points
+
     @property
     def extent_m(self) -> float:
         """Diameter of the circle that holds every propeller disc (for sizing crops)."""

@@ -24,8 +24,23 @@ _FRD_FROM_CAMERA = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 
 def matrix_to_quat_wxyz(R: np.ndarray) -> np.ndarray:
     """Unit quaternion (w, x, y, z) with w >= 0 of a 3x3 rotation matrix."""
-    q = Rotation.from_matrix(np.asarray(R, dtype=np.float64)).as_quat()  # x, y, z, w
+    R = np.asarray(R, dtype=np.float64)
+    q = Rotation.from_matrix(R, assume_valid=_surely_valid(R)).as_quat()  # x, y, z, w
     return canonical_quat(np.array([q[3], q[0], q[1], q[2]]))
+
+
+_EYE3 = np.eye(3)
+_SURELY_ORTHOGONAL = 0.5e-12  # stricter than scipy's own test (1e-12 off the diagonal, 1e-5 on it)
+
+
+def _surely_valid(R: np.ndarray) -> bool:
+    """True when scipy's ``from_matrix`` would find ``R`` a proper rotation as it is (positive
+    determinant, ``R R^T`` within its tolerance of the identity), so its check can be skipped: the
+    quaternion is then the same to the bit, at a quarter of the cost (a track's orientation is
+    published every frame). A matrix this stricter test leaves out gets scipy's full treatment."""
+    if R.shape != (3, 3):
+        return False
+    return bool(np.abs(R @ R.T - _EYE3).max() <= _SURELY_ORTHOGONAL and np.linalg.det(R) > 0.0)
 
 
 def quat_wxyz_to_matrix(q: np.ndarray) -> np.ndarray:

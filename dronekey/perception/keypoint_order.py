@@ -32,6 +32,7 @@ SYMMETRIES = ((0, 1, 2, 3), (1, 0, 3, 2), (3, 2, 1, 0), (2, 3, 0, 1))
 # The 180-degree twin (front and back exchanged by a half turn about the body's vertical axis):
 # the symmetry no geometry can tell apart, only the drone's look (the front/back head).
 HEADING_TWIN = list(SYMMETRIES[3])
+_SYMMETRY_INDEX = np.array(SYMMETRIES)  # (4, 4): every symmetry's order, for one fancy index
 
 
 def front_axis_turn(order) -> int:
@@ -106,7 +107,7 @@ class KeypointOrder:
         pred = np.asarray(predicted_px, dtype=np.float64)
         if not (np.all(np.isfinite(kp)) and np.all(np.isfinite(pred))):
             return kp, 0
-        dist = np.array([np.linalg.norm(kp[list(p)] - pred, axis=1).mean() for p in SYMMETRIES])
+        dist = np.linalg.norm(kp[_SYMMETRY_INDEX] - pred, axis=2).mean(axis=1)  # (4,): per symmetry
         best = int(np.argmin(dist))
         runner_up = float(np.min(np.delete(dist, best)))
         if dist[best] >= self.clear_ratio * runner_up or runner_up - dist[best] <= self.min_gain_px:

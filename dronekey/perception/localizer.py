@@ -167,23 +167,9 @@ def box_from_keypoints(keypoints_px: np.ndarray, spec: DroneSpec) -> Box:
     return float(lo[0]), float(lo[1]), float(hi[0] - lo[0]), float(hi[1] - lo[1])
 
 
-def _extent_points(spec: DroneSpec) -> np.ndarray:
-    """Points on each propeller disc's rim and the corners of a box under them that holds the body
-    and gimbal (body frame, m; dimensions from ``spec.body``, defaults from the wheelbase)."""
-    r = spec.prop_diameter_m / 2
-    ang = np.linspace(0, 2 * np.pi, 8, endpoint=False)
-    rim = np.c_[r * np.cos(ang), r * np.sin(ang), np.zeros(8)]
-    pts = [hub + rim for hub in spec.keypoints_3d]
-    length = float(spec.body.get("length", 0.65 * spec.diagonal_m))
-    width = float(spec.body.get("width", 0.3 * spec.diagonal_m))
-    depth = 1.4 * float(spec.body.get("height", 0.23 * spec.diagonal_m))
-    pts.append(np.array([[sx * length / 2, sy * width / 2, depth] for sx in (-1, 1) for sy in (-1, 1)]))
-    return np.vstack(pts)
-
-
 def box_from_pose(camera: CameraModel, spec: DroneSpec, R: np.ndarray, t: np.ndarray) -> Box | None:
     """Box of the drone at pose (R, t) in full-frame pixels, or None if it is behind the camera."""
-    pts = _extent_points(spec) @ np.asarray(R).T + np.asarray(t).reshape(3)
+    pts = spec.extent_points_m @ np.asarray(R).T + np.asarray(t).reshape(3)
     if pts[:, 2].min() <= 0.05:
         return None
     uv = camera.project(pts)

@@ -30,6 +30,7 @@ Each check returns the reason a detection fails (a short string for logs and the
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -75,8 +76,14 @@ class PlausibilityConfig:
 
 
 def _pair_lengths(kp: np.ndarray) -> np.ndarray:
-    i, j = np.triu_indices(len(kp), 1)
+    i, j = _pairs(len(kp))
     return np.linalg.norm(kp[i] - kp[j], axis=1)
+
+
+@functools.lru_cache(maxsize=4)
+def _pairs(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Both indices of every pair of ``n`` points (``np.triu_indices(n, 1)``, built once)."""
+    return np.triu_indices(n, 1)
 
 
 def check_detection(

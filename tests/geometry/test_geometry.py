@@ -4,11 +4,14 @@ import cv2
 import numpy as np
 import paths
 import pytest
+from scipy.spatial.transform import Rotation
 
+from dronekey.geometry.apparent_size import keypoint_spread
 from dronekey.geometry.camera import CalibrationError, CameraModel
 from dronekey.geometry.crop import CropPolicy, crop_square, from_normalised, to_normalised
 from dronekey.geometry.drone_spec import DroneSpecError, load_spec
 from dronekey.geometry.rotations import (
+    canonical_quat,
     geodesic_angle_deg,
     matrix_to_quat_wxyz,
     quat_wxyz_to_matrix,
@@ -79,6 +82,42 @@ def test_quaternion_roundtrip_and_sign():
         assert q[0] >= 0 and np.isclose(np.linalg.norm(q), 1)
         assert np.allclose(quat_wxyz_to_matrix(q), R, atol=1e-12)
         assert np.allclose(quat_wxyz_to_matrix(-q), R, atol=1e-12)
+
+
+def test_quaternion_same_bits_as_scipys_checked_conversion():
+    """``matrix_to_quat_wxyz`` skips scipy's rotation check where a stricter one passes: the
+    quaternion must be the checked conversion's to the bit, for clean rotations and for ones a
+    long filter run has pushed off orthogonality (those get scipy's repair)."""
+    rng = np.random.default_rng(2)
+    for k in range(300):
+        R = Rotation.random(random_state=int(rng.integers(1 << 30))).as_matrix()
+        if k % 2:
+            R = R + rng.normal(0.0, 10.0 ** rng.uniform(-15, -8), (3, 3))
+        xyzw = Rotation.from_matrix(R).as_quat()
+        checked = canonical_quat(np.array([xyzw[3], *xyzw[:3]]))
+        assert np.array_equal(matrix_to_quat_wxyz(R), checked)
+    with pytest.raises(ValueError, match="determinant"):
+        matrix_to_quat_wxyz(-np.eye(3))
+
+
+def test_keypoint_spread_is_the_longest_pair_to_the_bit():
+    rng = np.random.default_rng(3)
+    for _ in range(500):
+        kp = rng.uniform(-50.0, 2000.0, (4, 2)) * rng.uniform(1e-3, 1.0)
+        longest = max(np.linalg.norm(kp[i] - kp[j]) for i in range(4) for j in range(i + 1, 4))
+        assert keypoint_spread(kp) == float(longest)
+    assert keypoint_spread(np.zeros((4, 2))) == 0.0
+
+
+def test_extent_points_ring_each_disc_and_are_shared_read_only():
+    spec = load_spec("mini2")
+    points = spec.extent_points_m
+    assert points.shape == (36, 3) and not points.flags.writeable
+    assert spec.extent_points_m is points  # computed once per spec
+    radius = spec.prop_diameter_m / 2
+    for k, hub in enumerate(spec.keypoints_3d):
+        assert np.allclose(np.linalg.norm(points[8 * k : 8 * k + 8] - hub, axis=1), radius)
+    assert np.all(points[32:, 2] > 0)  # the body's box hangs below the hubs (z down)
 
 
 def test_geodesic_angle():
