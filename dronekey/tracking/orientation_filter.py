@@ -115,10 +115,9 @@ class OrientationFilter:
 
     def _recentre(self) -> None:
         """Fold the error into the reference; every change of the state (predict, update) ends here."""
-        self._rotation = None  # the state has just changed
-        self._R_ref = self.rotation
+        self._R_ref = self._R_ref @ rotation_exp(self._kf.x[:3])
         self._kf.x[:3] = 0.0
-        self._rotation = None
+        self._rotation = None  # the state has just changed
 
     def predicted(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """Body -> camera rotation after ``dt`` seconds and its covariance (camera-frame rotation

@@ -22,6 +22,8 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
+from dronekey.evaluation.pose import weighted_average
+
 __all__ = ["MovedSequence", "ReportComparison", "compare_reports", "load_report"]
 
 
@@ -135,7 +137,7 @@ def _pooled(groups: list[dict]) -> dict[str, float | None]:
     aps = [g["ap_kp"] for g in groups if g.get("ap_kp") is not None]
     return {
         "mae_angle_deg": _weighted(groups, "mae_angle_deg"),
-        "rmse_m": _weighted(groups, "rmse_m", power=2),
+        "rmse_m": _weighted(groups, "rmse_m", rms=True),
         "detected_pct": _share(groups, "detected_frames", frames),
         "ap_kp": sum(aps) / len(aps) if aps else None,
         "confident_wrong_heading_pct": _share(groups, "confident_wrong_heading_frames", frames),
@@ -144,14 +146,12 @@ def _pooled(groups: list[dict]) -> dict[str, float | None]:
     }
 
 
-def _weighted(groups: list[dict], key: str, power: int = 1) -> float | None:
-    """The power mean of ``key`` over the rows that have it, weighted by their detected frames (the
-    frames the figure is over); power 2 pools an RMSE."""
-    rows = [g for g in groups if g.get(key) is not None and g.get("detected_frames")]
-    n = sum(g["detected_frames"] for g in rows)
-    if not n:
-        return None
-    return (sum(g[key] ** power * g["detected_frames"] for g in rows) / n) ** (1 / power)
+def _weighted(groups: list[dict], key: str, rms: bool = False) -> float | None:
+    """``key`` over the rows that have it, weighted by their detected frames (the frames the figure
+    is over; ``pose.weighted_average``, ``rms`` for an RMSE); None where no row has it."""
+    values = [math.nan if g.get(key) is None else g[key] for g in groups]
+    pooled = weighted_average(values, [g.get("detected_frames") or 0 for g in groups], rms=rms)
+    return None if math.isnan(pooled) else pooled
 
 
 def _share(groups: list[dict], key: str, frames: int) -> float | None:
