@@ -9,7 +9,8 @@ or absent. Two modes:
   (``max_candidates``, or the caller's smaller one) is counted, so the live drones never use up the
   search; the network checks them all in one batch, and every one
   above the presence threshold is refined by a second crop framed on its predicted keypoints
-  (exactly as in training, ``dronekey.geometry.crop.CropPolicy``), all in a second batch. Each survivor
+  (``dronekey.geometry.crop.CropPolicy``'s framing of the hubs' box; the training crops frame the
+  whole drone, body included, so this one sits a little higher), all in a second batch. Each survivor
   becomes its own hypothesis downstream (``acquire_all``).
 - **Tracking**: one crop per live track around the box of its predicted pose (propeller discs
   projected through the camera), all in one batch (``track_many``).
