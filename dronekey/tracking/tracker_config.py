@@ -129,10 +129,10 @@ class TrackerConfig:
         measurement's word, as a new track's does: the evidence was gathered for the old
         orientation, and the new one is often a quarter or half turn from it (a run of
         quarter-turned orders). Kept, the track published 0.53-0.87 confidence on an attitude
-        107-177 deg off (Tab. VI seed 101, seq11, frames 266-280, after a reset at 266). Off by
-        default: on the tuning seeds it removed 6 of 56 confidently wrong frames, short of its
-        rule's fifth, and changed nothing else beyond noise (docs/evaluation.md, forty-first
-        session).
+        107-177 deg off (Tab. VI seed 101, seq11, frames 266-280, after a reset at 266). On by
+        default since the forty-eighth session: on two realizations of the three tuning sets it
+        removed confidently wrong frames (56 -> 50, 61 -> 60 of 16,200), turned one sequence's
+        heading right and moved no other figure (docs/evaluation.md).
     heading_look_frames : time constant, frames, of the running mean of the front/back classifier's
         per-frame log-odds; the published confidence never exceeds what that mean says (0: off, the
         accumulated log-odds are published).
@@ -191,7 +191,7 @@ class TrackerConfig:
     heading_evidence_weight: float = 0.05
     heading_switch_log_odds: float = 1.5
     heading_confidence_cap: float = 7.0
-    heading_restart_on_reset: bool = False
+    heading_restart_on_reset: bool = True
     heading_look_frames: float = 30.0
     heading_from_motion: float = 0.0
     heading_full_spread_px: float = 0.0
