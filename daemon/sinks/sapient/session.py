@@ -3,7 +3,8 @@
 One thread owns the socket. On each connection it sends the Registration and waits for the
 RegistrationAck; only once accepted do detection reports go out (``accepting()``). It answers every
 Task with a TaskAck, applies the accepted ones to ``NodeState`` (reporting on or off, regions of
-interest), sends a StatusReport every ``status_interval_s`` and a GOODBYE one on close.
+interest), sends a StatusReport every ``status_interval_s`` and a GOODBYE one on close, its last
+word (queued reports go out before it, no status after it).
 
 Nothing here blocks the caller: ``send_report`` puts an encoded frame on a bounded queue (the
 oldest report is dropped when it is full) and returns. A peer that takes no bytes for
@@ -194,9 +195,15 @@ class SapientSession:
                 if self._closing.is_set() and goodbye_deadline is None:
                     if not self.state.registered:
                         return
+                    self._queue_reports_as_control(generation)  # the goodbye is the last word
                     self._queue_control(self._status(False, self.state.active_task_id, True))
                     goodbye_deadline = now + _GOODBYE_FLUSH_S
-                if self.state.registered and next_status is not None and now >= next_status:
+                if (
+                    goodbye_deadline is None
+                    and self.state.registered
+                    and next_status is not None
+                    and now >= next_status
+                ):
                     self._queue_control(self._status(False, self.state.active_task_id, False))
                     next_status = now + self._config.status_interval_s
                 self._fill(pending, generation)
@@ -237,6 +244,16 @@ class SapientSession:
         with contextlib.suppress(OSError):
             while self._wake_recv.recv(4096):
                 pass
+
+    def _queue_reports_as_control(self, generation: int) -> None:
+        """Move this connection's queued reports behind the control messages, so that they go out
+        before a control message queued next (the GOODBYE) instead of after it."""
+        with self._lock:
+            while self._reports:
+                frame_generation, frame = self._reports.popleft()
+                if frame_generation == generation:
+                    self._control.append(frame)
+                    self.counts["reports sent"] += 1
 
     def _fill(self, pending: bytearray, generation: int) -> None:
         """Move queued frames into the send buffer: control messages first, then this connection's reports."""

@@ -401,3 +401,24 @@ def test_the_daemon_reports_a_simulated_drone_to_the_node(node):
     # The goodbye is the daemon's last word; the process may exit before this node has read it.
     wait_until(lambda: any(r.system == StatusReport.SYSTEM_GOODBYE for r in node.of("status_report")))
     assert node.of("status_report")[-1].system == StatusReport.SYSTEM_GOODBYE
+
+
+def test_the_goodbye_is_the_last_word_even_with_statuses_and_reports_due(node, sink_for):
+    """On close, the reports still queued go out before the GOODBYE, and no periodic StatusReport
+    follows it, even when one is due that very moment (a status every 10 ms)."""
+    sink = sink_for(node, status_interval_s=0.01)
+    node.wait_for("registration")
+    node.send(SapientMessage(node_id="fusion", registration_ack=RegistrationAck(acceptance=True)))
+    wait_until(lambda: sink.session.accepting())
+    wait_until(lambda: len(node.of("status_report")) >= 3)  # statuses are flowing
+    sink.handle_update(frame(make_track(track_id=3, score=0.9)))
+    sink.close()
+    wait_until(lambda: any(r.system == StatusReport.SYSTEM_GOODBYE for r in node.of("status_report")))
+    time.sleep(0.1)  # anything sent after the goodbye would have arrived by now
+    kinds = [m.WhichOneof("content") for m in node.received]
+    last = len(kinds) - 1
+    assert (
+        kinds[last] == "status_report"
+        and node.received[last].status_report.system == StatusReport.SYSTEM_GOODBYE
+    )
+    assert "detection_report" in kinds  # the queued report went out, before the goodbye
