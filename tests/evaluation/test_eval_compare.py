@@ -71,6 +71,12 @@ def test_sets_pool_frame_weighted(runs):
     )
     assert figs["ap_kp"][1] == pytest.approx((a["ap_kp"] + b["ap_kp"]) / 2)
     assert figs["false_track_frames"][1] == a["false_track_frames"] + b["false_track_frames"]
+    wrong = a["confident_wrong_heading_frames"] + b["confident_wrong_heading_frames"]
+    assert figs["confident_wrong_heading_frames"] == (2 * a["confident_wrong_heading_frames"], wrong)
+    assert pooled.rows[("drone-free", "drone-free")]["confident_wrong_heading_frames"] == (None, None)
+    base_wrong = 2 * a["confident_wrong_heading_frames"]
+    line = f"confidently wrong frames over the drone sequences: {base_wrong} -> {wrong}"
+    assert line in pooled.table()
     assert pooled.sequences == 2 * sum(not s["no_drone"] for s in base["sequences"])
 
 

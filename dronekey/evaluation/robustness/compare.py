@@ -95,6 +95,9 @@ class ReportComparison:
             cells = [f"{by} {value}" if by != value else value]
             cells += [_pair(figs[key], fmt) for key, fmt in _FIGURES]
             lines.append("  ".join(f"{c:>{w}}" for c, (_, w) in zip(cells, _HEADER, strict=True)))
+        wrong = self.rows.get(("all", "drone sequences"), {}).get("confident_wrong_heading_frames")
+        if wrong is not None:  # the rows give it as a share; rules are often written in frames
+            lines.append(f"confidently wrong frames over the drone sequences: {_pair(wrong, '{:d}')}")
         lines.append(
             f"sequences whose MAE-angle moved by more than {self.moved_deg:g} deg: {self.better} better, "
             f"{self.worse} worse (of {self.sequences})"
@@ -143,6 +146,7 @@ def _pooled(groups: list[dict]) -> dict[str, float | None]:
         "confident_wrong_heading_pct": _share(groups, "confident_wrong_heading_frames", frames),
         "confident_right_heading_pct": _share(groups, "confident_right_heading_frames", frames),
         "false_track_frames": sum(g.get("false_track_frames") or 0 for g in groups),
+        "confident_wrong_heading_frames": _count(groups, "confident_wrong_heading_frames"),
     }
 
 
@@ -152,6 +156,13 @@ def _weighted(groups: list[dict], key: str, rms: bool = False) -> float | None:
     values = [math.nan if g.get(key) is None else g[key] for g in groups]
     pooled = weighted_average(values, [g.get("detected_frames") or 0 for g in groups], rms=rms)
     return None if math.isnan(pooled) else pooled
+
+
+def _count(groups: list[dict], key: str) -> int | None:
+    """``key``'s frames summed over the rows; None where no row has it (drone-free rows)."""
+    if all(g.get(key) is None for g in groups):
+        return None
+    return sum(g.get(key) or 0 for g in groups)
 
 
 def _share(groups: list[dict], key: str, frames: int) -> float | None:
@@ -211,5 +222,5 @@ def compare_reports(
         if len(pairs) != len(base):  # a row some sets lack is left out rather than pooled over fewer
             continue
         b_fig, c_fig = _pooled([p[0] for p in pairs]), _pooled([p[1] for p in pairs])
-        rows[row] = {k: (b_fig[k], c_fig[k]) for k, _ in _FIGURES}
+        rows[row] = {k: (b_fig[k], c_fig[k]) for k in b_fig}
     return ReportComparison(len(base), rows, moved, sequences, float(moved_deg))
