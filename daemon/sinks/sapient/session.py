@@ -245,15 +245,22 @@ class SapientSession:
             while self._wake_recv.recv(4096):
                 pass
 
+    def _next_report(self, generation: int) -> bytes | None:
+        """The next queued report of this connection (``generation``), counted as sent; reports of
+        earlier connections on the way are dropped. None when none is left. Call with the lock held."""
+        while self._reports:
+            frame_generation, frame = self._reports.popleft()
+            if frame_generation == generation:
+                self.counts["reports sent"] += 1
+                return frame
+        return None
+
     def _queue_reports_as_control(self, generation: int) -> None:
         """Move this connection's queued reports behind the control messages, so that they go out
         before a control message queued next (the GOODBYE) instead of after it."""
         with self._lock:
-            while self._reports:
-                frame_generation, frame = self._reports.popleft()
-                if frame_generation == generation:
-                    self._control.append(frame)
-                    self.counts["reports sent"] += 1
+            while (frame := self._next_report(generation)) is not None:
+                self._control.append(frame)
 
     def _fill(self, pending: bytearray, generation: int) -> None:
         """Move queued frames into the send buffer: control messages first, then this connection's reports."""
@@ -262,11 +269,8 @@ class SapientSession:
                 pending += self._control.popleft()
             if not self.state.registered:
                 return
-            while self._reports and len(pending) < _SEND_CHUNK:
-                frame_generation, frame = self._reports.popleft()
-                if frame_generation == generation:
-                    pending += frame
-                    self.counts["reports sent"] += 1
+            while len(pending) < _SEND_CHUNK and (frame := self._next_report(generation)) is not None:
+                pending += frame
 
     def _handle(self, message: SapientMessage) -> bool | None:
         """Act on one received message. Returns True when it was an accepting RegistrationAck, None

@@ -166,9 +166,9 @@ def _count(groups: list[dict], key: str) -> int | None:
 
 
 def _share(groups: list[dict], key: str, frames: int) -> float | None:
-    if not frames or all(g.get(key) is None for g in groups):
-        return None
-    return 100 * sum(g.get(key) or 0 for g in groups) / frames
+    """``_count`` of ``key`` as a percentage of ``frames``; None where either is missing."""
+    count = _count(groups, key)
+    return None if not frames or count is None else 100 * count / frames
 
 
 def compare_reports(
