@@ -170,7 +170,7 @@ def close_outputs(workers: Mapping[str, SinkWorker], timeout_s: float) -> list[s
     threads = {
         name: threading.Thread(
             target=worker.close,
-            kwargs={"timeout_s": max(0.1, timeout_s * 0.5)},
+            kwargs={"timeout_s": max(0.1, timeout_s * 0.5), "grace_s": max(0.05, timeout_s * 0.2)},
             name=f"close-{name}",
             daemon=True,
         )

@@ -192,14 +192,33 @@ class SinkWorker:
                     log.warning("sink %s failed: %s", self.sink.name, msg)
                 self.stats.last_error = msg
 
-    def close(self, timeout_s: float = 3.0) -> None:
-        """Publish what is queued (within ``timeout_s``), then close the sink."""
+    def close(self, timeout_s: float = 3.0, grace_s: float = 1.0) -> None:
+        """Publish what is queued (within ``timeout_s``), then close the sink.
+
+        A sink that cannot drain in time loses what is still queued: it is counted in
+        ``stats.dropped`` and logged, never lost silently. The sink is closed only after its worker
+        has returned from the call it is in (waiting up to ``grace_s`` more), so nothing reaches a
+        closed sink: a SAPIENT session's GOODBYE stays its last word. Only a call blocked past the
+        grace is left running while the sink closes, and that is logged too.
+        """
         with self._cond:
             self._closing = True
             self._cond.notify_all()
         self._thread.join(timeout_s)
         if self._thread.is_alive():
-            log.warning("sink %s did not drain within %.1f s; closing anyway", self.sink.name, timeout_s)
+            with self._cond:
+                abandoned = len(self._queue)
+                self._queue.clear()
+                self.stats.dropped += abandoned
+            log.warning(
+                "sink %s did not drain within %.1f s; dropped the %d messages still queued",
+                self.sink.name, timeout_s, abandoned,
+            )  # fmt: skip
+            self._thread.join(grace_s)
+            if self._thread.is_alive():
+                log.warning(
+                    "sink %s is still in a call %.1f s later; closing it anyway", self.sink.name, grace_s
+                )
         try:
             self.sink.close()
         except Exception as exc:
