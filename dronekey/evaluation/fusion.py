@@ -12,10 +12,10 @@ matched to the ground-truth drones:
   the matches; ``frames`` counts the drone-frames that had an estimate;
 - MOT metrics (``motmetrics``): CLEAR-MOT and identity metrics matched on 3D distance within
   ``gate_m``;
-- for each camera, the fused RMSE over the drone-frames that camera matched
-  (``fused_rmse_on_its_frames_m``): the fused tracks also cover frames where only the other camera
-  sees the drone, so the fused RMSE over all its frames mixes accuracy with coverage; this figure is
-  the accuracy alone, beside the camera's own RMSE on the same frames.
+- for each camera, the fused RMSE over the drone-frames that camera matched (and the fused tracks
+  too; ``fused_rmse_on_its_frames_m``), and for the better camera the ratio of the two RMSEs over
+  those frames: the fused tracks also cover frames where only the other camera sees the drone, so
+  the fused RMSE over all its frames mixes accuracy with coverage; this ratio is the accuracy alone.
 """
 
 from __future__ import annotations
@@ -91,7 +91,17 @@ class _Scores:
     def rmse_on(self, keys) -> float | None:
         """RMSE (m) over the given (frame, truth) matches of this method, None when there are none."""
         values = [self.sq_errors[k] for k in keys if k in self.sq_errors]
-        return rounded(float(np.sqrt(np.mean(values)))) if values else None
+        return float(np.sqrt(np.mean(values))) if values else None
+
+
+def fused_over_camera_on_its_frames(camera: _Scores, fused: _Scores) -> tuple[float | None, float | None]:
+    """(fused RMSE, fused RMSE / the camera's RMSE), both over the drone-frames the camera and the
+    fused tracks matched; (None, None) where there are none."""
+    common = camera.sq_errors.keys() & fused.sq_errors.keys()
+    there, own = fused.rmse_on(common), camera.rmse_on(common)
+    if there is None or own is None:
+        return None, None
+    return rounded(there), (rounded(there / own) if own > 0 else None)
 
 
 @dataclass(frozen=True)
@@ -106,22 +116,13 @@ class FusionResult:
     gate_m: float
     methods: dict
     triangulated_share: float | None
+    fused_over_better_on_its_frames: float | None = None  # see ``fused_over_camera_on_its_frames``
 
     @property
     def fused_over_better(self) -> float | None:
         singles = [m["rmse_m"] for k, m in self.methods.items() if k != FUSED and m["rmse_m"] is not None]
         fused = self.methods[FUSED]["rmse_m"]
         return None if not singles or fused is None else rounded(fused / min(singles))
-
-    @property
-    def fused_over_better_on_its_frames(self) -> float | None:
-        """The fused RMSE over the better camera's own drone-frames, over that camera's RMSE."""
-        singles = {k: m for k, m in self.methods.items() if k != FUSED and m["rmse_m"] is not None}
-        if not singles:
-            return None
-        better = min(singles.values(), key=lambda m: m["rmse_m"])
-        there = better["fused_rmse_on_its_frames_m"]
-        return None if there is None or not better["rmse_m"] > 0 else rounded(there / better["rmse_m"])
 
     def to_dict(self) -> dict:
         return {
@@ -196,12 +197,19 @@ def evaluate_fusion(folder: str | Path, model_path=None, gate_m: float = 2.0, ma
         estimates = [(f.fused_id, f.position_m, quat_wxyz_to_matrix(f.quaternion_wxyz)) for f in fused]
         scores[FUSED].add(frames, estimates, truths, gate_m)
     methods = {name: s.summary(name) for name, s in scores.items()}
+    ratios = {}
     for cid in cameras:
-        methods[cid]["fused_rmse_on_its_frames_m"] = scores[FUSED].rmse_on(scores[cid].sq_errors)
+        methods[cid]["fused_rmse_on_its_frames_m"], ratios[cid] = fused_over_camera_on_its_frames(
+            scores[cid], scores[FUSED]
+        )
     methods[FUSED]["fused_rmse_on_its_frames_m"] = methods[FUSED]["rmse_m"]
+    seen = [cid for cid in cameras if methods[cid]["rmse_m"] is not None]
+    better = min(seen, key=lambda cid: methods[cid]["rmse_m"], default=None)
     share = rounded(triangulated / fused_total) if fused_total else None
     name = next(iter(sequences.values())).name
-    return FusionResult(str(folder), name, frames, float(gate_m), methods, share)
+    return FusionResult(
+        str(folder), name, frames, float(gate_m), methods, share, ratios.get(better) if better else None
+    )
 
 
 def _truths(sf, pose: CameraPose) -> list:

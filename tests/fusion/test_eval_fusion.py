@@ -9,7 +9,7 @@ from pathlib import Path
 
 from site_files import render_cameras
 
-from dronekey.evaluation.fusion import FUSED, FusionResult
+from dronekey.evaluation.fusion import _Scores, fused_over_camera_on_its_frames
 
 BIN = Path(sys.executable).parent
 
@@ -40,21 +40,12 @@ def test_fusion_eval_reports_each_camera_and_the_fused_tracks(tmp_path):
     assert "fused there" in table and table.count("|") > 20
 
 
-def test_the_ratio_on_the_better_cameras_own_frames_divides_the_fused_rmse_there_by_its_own():
-    def method(rmse, there):
-        return {"rmse_m": rmse, "fused_rmse_on_its_frames_m": there}
-
-    # camera b is the better one (7 m); the fused tracks cover a's worse frames too (15 m overall)
-    methods = {"a": method(21.0, 16.0), "b": method(7.0, 5.6), FUSED: method(15.0, 15.0)}
-    result = FusionResult("dir", "far", 90, 2.0, methods, 0.36)
-    assert result.fused_over_better == round(15.0 / 7.0, 4)
-    assert result.fused_over_better_on_its_frames == 0.8
-    assert (
-        FusionResult(
-            "dir", "far", 90, 2.0, {"a": method(None, None), FUSED: method(None, None)}, None
-        ).fused_over_better_on_its_frames
-        is None
-    )
+def test_the_ratio_on_a_cameras_own_frames_compares_both_on_the_frames_both_matched():
+    camera, fused = _Scores.empty(), _Scores.empty()
+    camera.sq_errors = {(0, 0): 49.0, (1, 0): 49.0, (2, 0): 100.0}  # frame 2: the fused tracks had none
+    fused.sq_errors = {(0, 0): 16.0, (1, 0): 16.0, (3, 0): 400.0}  # frame 3: only the other camera
+    assert fused_over_camera_on_its_frames(camera, fused) == (4.0, round(4.0 / 7.0, 4))
+    assert fused_over_camera_on_its_frames(_Scores.empty(), fused) == (None, None)
 
 
 def test_fusion_eval_names_a_folder_without_a_site_file(tmp_path):
