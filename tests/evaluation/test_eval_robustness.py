@@ -21,6 +21,7 @@ from dronekey.evaluation.robustness.scoring import (
     match_gate_m,
     miss_reason,
     on_line_of_sight,
+    position_m2,
     range_z,
 )
 from dronekey.evaluation.robustness.seed_sets import check_seeds
@@ -74,6 +75,9 @@ METRICS = {
     "range_doubt_frames",
     "range_within_1sd_pct",
     "range_within_2sd_pct",
+    "position_within_2sd_measured_pct",
+    "coasting_frames",
+    "position_within_2sd_coasting_pct",
     "front_away_pct",
     "confident_wrong_heading_front_away_pct",
     "confident_wrong_heading_front_toward_pct",
@@ -199,6 +203,8 @@ def _scores(
         front_back_right=np.asarray(fb if fb is not None else [np.nan] * n, float),
         axis_exchanged=np.full(n, np.nan),
         range_z=np.full(n, np.nan),
+        position_m2=np.full(n, np.nan),
+        coasting=np.zeros(n, bool),
     )
 
 
@@ -621,6 +627,22 @@ def test_summary_counts_frames_whose_range_lies_within_one_and_two_stated_deviat
     assert out["range_doubt_frames"] == 4
     assert out["range_within_1sd_pct"] == pytest.approx(50.0)
     assert out["range_within_2sd_pct"] == pytest.approx(75.0)
+
+
+def test_position_m2_is_the_true_positions_squared_mahalanobis_distance_under_the_published_cov():
+    track = make_track(position_m=(0.0, 3.0, 4.0), position_cov=np.diag([4.0, 0.25, 1.0]))
+    assert position_m2(track, np.array([2.0, 3.5, 3.0])) == pytest.approx(1.0 + 1.0 + 1.0)
+    assert np.isnan(position_m2(make_track(position_m=(0, 3, 4), position_cov=np.zeros((3, 3))), [0, 0, 5]))
+
+
+def test_summary_counts_positions_within_two_deviations_measured_and_coasting_apart():
+    s = _scores([False] * 6, [True] * 6, [False] * 6, [False] * 6, [[0, 0, 0]] * 6)
+    s.position_m2 = np.array([1.0, 9.0, 2.0, 20.0, 3.0, np.nan])  # the last: no track on the drone
+    s.coasting = np.array([False, False, False, True, True, False])
+    out = summarise([s])
+    assert out["position_within_2sd_measured_pct"] == 66.67  # 1 and 2 of 1, 9, 2 (rounded to 2 places)
+    assert out["coasting_frames"] == 2
+    assert out["position_within_2sd_coasting_pct"] == pytest.approx(50.0)  # 3 of 20 and 3
 
 
 def test_cli_any_tracker_or_localizer_setting_is_measured_recorded_and_named(tmp_path, capsys):

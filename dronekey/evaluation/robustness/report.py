@@ -57,8 +57,9 @@ _COLUMNS = (
 
 # The second table: where the frames without the drone's track went, the front/back classifier per
 # detection, the detections whose order exchanges the body's axes, and how often the true range lies
-# within one and two published standard deviations, the drone's keypoints' median error, and the
-# frames whose drone shows its front with the MAE-angle over them (``summary``'s notes).
+# within one and two published standard deviations, the true position within two of the whole
+# covariance on measured and on coasting frames, the drone's keypoints' median error, and the frames
+# whose drone shows its front with the MAE-angle over them (``summary``'s notes).
 _MISS_COLUMNS = (
     ("detected", "%", "detected_pct", "{:.1f}"),
     ("range", "%", "missed_wrong_range_pct", "{:.1f}"),
@@ -70,6 +71,8 @@ _MISS_COLUMNS = (
     ("kp err", "px", "kp_err_px_median", "{:.2f}"),
     ("rng<1sd", "%", "range_within_1sd_pct", "{:.1f}"),
     ("rng<2sd", "%", "range_within_2sd_pct", "{:.1f}"),
+    ("pos<2sd", "%", "position_within_2sd_measured_pct", "{:.1f}"),
+    ("coast<2sd", "%", "position_within_2sd_coasting_pct", "{:.1f}"),
     ("front", "%", "front_shown_pct", "{:.1f}"),
     ("ang fr", "deg", "mae_angle_front_shown_deg", "{:.2f}"),
 )

@@ -25,7 +25,10 @@ A fresh ``TrackingPipeline`` (unchanged) runs over every frame; per scored frame
   (``front_back_right``): the classifier's word per frame, apart from what the tracker made of it;
 - how honest the published range doubt is (``range_z``): for the published track nearest the
   truth among those on the drone (its own, or one on its line of sight at a wrong range), the
-  range error over the standard deviation its ``position_cov`` states along its line of sight;
+  range error over the standard deviation its ``position_cov`` states along its line of sight, and
+  the squared Mahalanobis distance of the true position under that covariance, with whether the
+  track was coasting (``position_m2``, ``coasting``): the whole covariance's honesty, measured and
+  unmeasured frames apart;
 - whether the drone's body shows its front to the camera (``front_shown``, ``front_cues``): where it
   does not, front and back are a coin flip for any heading reader.
 
@@ -138,6 +141,19 @@ def range_z(track: Track, t_true: np.ndarray) -> float:
     return (float(np.linalg.norm(track.position_m)) - float(np.linalg.norm(t_true))) / float(np.sqrt(var))
 
 
+def position_m2(track: Track, t_true: np.ndarray) -> float:
+    """The squared Mahalanobis distance (3 dof) of the true position ``t_true`` (camera frame, m)
+    from the track's under its ``position_cov``; NaN where the covariance is not usable."""
+    cov = np.asarray(track.position_cov, dtype=np.float64)
+    d = np.asarray(t_true, dtype=np.float64).reshape(3) - np.asarray(track.position_m, dtype=np.float64)
+    if not np.all(np.isfinite(cov)) or not np.all(np.isfinite(d)):
+        return float("nan")
+    try:
+        return float(d @ np.linalg.solve(cov, d))
+    except np.linalg.LinAlgError:
+        return float("nan")
+
+
 def front_back_verdict(detection: KeypointDetection | None, kp_true: np.ndarray) -> float:
     """1.0 where ``detection``'s front/back probability favours the true order (``kp_true``, (4, 2)
     pixels in the spec's order), 0.0 where it favours the twin; NaN without a detection of this
@@ -247,6 +263,8 @@ class SequenceScores:
         0.5, or the detection is not the drone's or its order is undecided.
     range_z : (N,) ``range_z`` of the published track nearest the truth among those on the drone
         (its own, or on its line of sight at a wrong range); NaN where there is none.
+    position_m2, coasting : (N,) ``position_m2`` of that track, and whether it was coasting (NaN and
+        False where there is none).
     front_shown : (N,) the drone's body shows its front to the camera in the frame
         (``front_cues.front_shown``); None where the sequence does not name its look.
     fps : frames per second of the pipeline alone (all frames of the sequence).
@@ -275,6 +293,8 @@ class SequenceScores:
     front_back_right: np.ndarray
     axis_exchanged: np.ndarray
     range_z: np.ndarray
+    position_m2: np.ndarray
+    coasting: np.ndarray
     front_shown: np.ndarray | None = None
     fps: float = float("nan")
 
@@ -376,6 +396,8 @@ def score_sequence(
             "front_back",
             "axis",
             "range_z",
+            "position_m2",
+            "coasting",
         )
     }
     false_ids: set[int] = set()
@@ -415,6 +437,8 @@ def score_sequence(
             on_drone, key=lambda tr: float(np.linalg.norm(tr.position_m - ann.translation)), default=None
         )
         rows["range_z"].append(range_z(nearest, ann.translation) if nearest is not None else np.nan)
+        rows["position_m2"].append(position_m2(nearest, ann.translation) if nearest is not None else np.nan)
+        rows["coasting"].append(nearest is not None and nearest.status is TrackStatus.COASTING)
         mine = [tr for tr, ok in zip(published, is_drone, strict=True) if ok]
         best = min(mine, key=published_track_rank) if mine else None
         rows["miss"].append(
@@ -472,6 +496,8 @@ def score_sequence(
         front_back_right=_stack(rows["front_back"], ()),
         axis_exchanged=_stack(rows["axis"], ()),
         range_z=_stack(rows["range_z"], ()),
+        position_m2=_stack(rows["position_m2"], ()),
+        coasting=_stack(rows["coasting"], (), bool),
         front_shown=None if no_drone else front_shown(seq.info, R_true, t_true),
         fps=n / proc_s if proc_s > 0 else float("nan"),
     )

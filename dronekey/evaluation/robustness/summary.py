@@ -40,7 +40,11 @@ Per sequence and per group (a frame-weighted average over the scored frames, ``s
   to set beside ``--oracle-noise`` (noise of sigma px per coordinate is 1.18 sigma px here);
 - range doubt: of the frames with a published track on the drone (``scoring.range_z``), the
   percent whose true range lies within one and within two of the standard deviations the track's
-  ``position_cov`` states along its line of sight (an honest Gaussian doubt: 68 and 95);
+  ``position_cov`` states along its line of sight (an honest Gaussian doubt: 68 and 95); and the
+  percent whose true position lies within two standard deviations of the whole covariance
+  (``scoring.position_m2`` <= 8.02, 95.4 for an honest Gaussian in 3 dof), the measured frames
+  (``position_within_2sd_measured_pct``) and the coasting ones (``position_within_2sd_coasting_pct``,
+  over ``coasting_frames``) apart: a track that coasts must widen its doubt as fast as its error grows;
 - the front shown: ``front_shown_pct``, the annotated frames whose drone's body shows its front to
   the camera (``front_cues``), and ``mae_angle_front_shown_deg``, MAE-angle over the detected frames
   among them. Where the body shows no front, front and back are a coin flip for any reader (90 deg
@@ -60,6 +64,8 @@ from dronekey.evaluation.pose import pose_errors, rounded
 from dronekey.evaluation.robustness.scoring import SequenceScores, keypoint_error_px
 
 __all__ = ["summarise"]
+
+_CHI2_3DOF_2SD = 8.02  # chi-square, 3 degrees of freedom, at the 95.4 % of two standard deviations
 
 
 def _pct(count: int, total: int) -> float:
@@ -81,7 +87,8 @@ def summarise(scores: Sequence[SequenceScores]) -> dict:
     ``confident_right_heading_pct``, ``missed_wrong_range_pct``, ``missed_unconfirmed_pct``,
     ``missed_unseen_pct``, ``front_back_frames``, ``front_back_right_pct``, ``axis_frames``,
     ``axis_exchanged_pct``, ``kp_err_px_median``, ``range_doubt_frames``, ``range_within_1sd_pct``,
-    ``range_within_2sd_pct``, ``front_away_pct``,
+    ``range_within_2sd_pct``, ``position_within_2sd_measured_pct``, ``coasting_frames``,
+    ``position_within_2sd_coasting_pct``, ``front_away_pct``,
     ``confident_wrong_heading_front_away_pct``, ``confident_wrong_heading_front_toward_pct``,
     ``front_shown_pct`` and ``mae_angle_front_shown_deg``; figures that need a drone sequence are
     None without one, and a figure with no frame to average is None.
@@ -128,6 +135,9 @@ def summarise(scores: Sequence[SequenceScores]) -> dict:
         "range_doubt_frames": None,
         "range_within_1sd_pct": None,
         "range_within_2sd_pct": None,
+        "position_within_2sd_measured_pct": None,
+        "coasting_frames": None,
+        "position_within_2sd_coasting_pct": None,
         "front_away_pct": None,
         "confident_wrong_heading_front_away_pct": None,
         "confident_wrong_heading_front_toward_pct": None,
@@ -159,6 +169,10 @@ def summarise(scores: Sequence[SequenceScores]) -> dict:
     kp_err = kp_err[np.isfinite(kp_err)]
     z = np.abs(cat("range_z"))
     z = z[np.isfinite(z)]
+    m2, coasting = cat("position_m2"), cat("coasting")
+    known = np.isfinite(m2)
+    within = m2 <= _CHI2_3DOF_2SD
+    measured, coasted = known & ~coasting, known & coasting
     if all(s.front_shown is not None for s in drone):
         shown = cat("front_shown")
         angle_shown = pose_errors(*(a[hit & shown] for a in poses))
@@ -191,6 +205,9 @@ def summarise(scores: Sequence[SequenceScores]) -> dict:
         range_doubt_frames=int(len(z)),
         range_within_1sd_pct=rounded(_pct(int((z <= 1.0).sum()), len(z)), 2),
         range_within_2sd_pct=rounded(_pct(int((z <= 2.0).sum()), len(z)), 2),
+        position_within_2sd_measured_pct=rounded(_pct(int(within[measured].sum()), int(measured.sum())), 2),
+        coasting_frames=int(coasted.sum()),
+        position_within_2sd_coasting_pct=rounded(_pct(int(within[coasted].sum()), int(coasted.sum())), 2),
         front_away_pct=rounded(_pct(int(away.sum()), n_ann), 2),
         confident_wrong_heading_front_away_pct=rounded(
             _pct(int(confident_wrong_frames[away].sum()), int(away.sum())), 2
