@@ -94,6 +94,12 @@ class _Scores:
         return float(np.sqrt(np.mean(values))) if values else None
 
 
+def better_camera(methods: dict) -> str | None:
+    """The camera (a key of ``methods`` other than ``FUSED``) with the lowest RMSE; None if none has one."""
+    seen = [k for k, m in methods.items() if k != FUSED and m["rmse_m"] is not None]
+    return min(seen, key=lambda k: methods[k]["rmse_m"], default=None)
+
+
 def fused_over_camera_on_its_frames(camera: _Scores, fused: _Scores) -> tuple[float | None, float | None]:
     """(fused RMSE, fused RMSE / the camera's RMSE), both over the drone-frames the camera and the
     fused tracks matched; (None, None) where there are none."""
@@ -120,9 +126,9 @@ class FusionResult:
 
     @property
     def fused_over_better(self) -> float | None:
-        singles = [m["rmse_m"] for k, m in self.methods.items() if k != FUSED and m["rmse_m"] is not None]
+        better = better_camera(self.methods)
         fused = self.methods[FUSED]["rmse_m"]
-        return None if not singles or fused is None else rounded(fused / min(singles))
+        return None if better is None or fused is None else rounded(fused / self.methods[better]["rmse_m"])
 
     def to_dict(self) -> dict:
         return {
@@ -203,8 +209,7 @@ def evaluate_fusion(folder: str | Path, model_path=None, gate_m: float = 2.0, ma
             scores[cid], scores[FUSED]
         )
     methods[FUSED]["fused_rmse_on_its_frames_m"] = methods[FUSED]["rmse_m"]
-    seen = [cid for cid in cameras if methods[cid]["rmse_m"] is not None]
-    better = min(seen, key=lambda cid: methods[cid]["rmse_m"], default=None)
+    better = better_camera(methods)
     share = rounded(triangulated / fused_total) if fused_total else None
     name = next(iter(sequences.values())).name
     return FusionResult(
